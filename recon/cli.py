@@ -11,6 +11,8 @@ import importlib
 import sys
 
 COMMANDS = [
+    "recon.run",
+    "recon.render",
 ]
 
 
