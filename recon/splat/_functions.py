@@ -94,7 +94,7 @@ class Rasterize(torch.autograd.Function):
     def forward(ctx, means2d, conics, colors, opacities, depths, radii, width: int, height: int,
                 max_pairs: int, threads: int):
         tensors = (means2d, conics, colors, opacities, depths, radii)
-        image, alpha, depth, final_T, last, tx, ty, offsets, ids, boxes = _native.rasterize_forward(
+        image, alpha, depth, final_T, last, tx, ty, offsets, ids, boxes, _ = _native.rasterize_forward(
             *(_np(t) for t in tensors), width, height, max_pairs, threads
         )
         ctx.save_for_backward(*tensors)  # version-checked: in-place edits before backward raise

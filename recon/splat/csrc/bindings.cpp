@@ -1,5 +1,6 @@
 // pybind11 glue: numpy buffers in, numpy buffers out; no torch here (the build must not need
 // it). Shapes are re-checked so a wrong call raises ValueError instead of reading past a buffer.
+#include <omp.h>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
@@ -182,16 +183,19 @@ py::tuple raster_fwd(Arr<float> means2d, Arr<float> conics, Arr<float> colors,
   auto final_T = empty<float>({height, width});
   auto last = empty<int32_t>({height, width});
   Binning bins;
+  double bin_seconds;
   {
     py::gil_scoped_release nogil;
+    const double t0 = omp_get_wtime();
     bin_gaussians(s, max_pairs, threads, bins);
+    bin_seconds = omp_get_wtime() - t0;
     rasterize_forward(s, view_of(bins), image.mutable_data(), alpha.mutable_data(),
                       depth.mutable_data(), final_T.mutable_data(), last.mutable_data(), threads);
   }
   const int tx = bins.tiles_x, ty = bins.tiles_y;
   return py::make_tuple(image, alpha, depth, final_T, last, tx, ty,
                         from_vector(std::move(bins.offsets)), from_vector(std::move(bins.ids)),
-                        from_vector(std::move(bins.boxes)));
+                        from_vector(std::move(bins.boxes)), bin_seconds);
 }
 
 py::tuple raster_bwd(Arr<float> means2d, Arr<float> conics, Arr<float> colors,

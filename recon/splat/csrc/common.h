@@ -21,21 +21,30 @@ typedef int32_t i8 __attribute__((vector_size(32)));
 inline f8 splat8(float x) { return f8{x, x, x, x, x, x, x, x}; }
 inline i8 spliti8(int32_t x) { return i8{x, x, x, x, x, x, x, x}; }
 inline f8 select8(i8 m, f8 a, f8 b) { return m ? a : b; }
+#ifdef __AVX__
+#include <immintrin.h>
+inline float hsum8(f8 v) {
+  const __m128 lo = _mm256_castps256_ps128((__m256)v), hi = _mm256_extractf128_ps((__m256)v, 1);
+  __m128 s = _mm_add_ps(lo, hi);
+  s = _mm_add_ps(s, _mm_movehl_ps(s, s));
+  s = _mm_add_ss(s, _mm_movehdup_ps(s));
+  return _mm_cvtss_f32(s);
+}
+inline int mask8(i8 m) { return _mm256_movemask_ps((__m256)m); }
+#else
 inline float hsum8(f8 v) {
   float s = 0.f;
   for (int i = 0; i < kLanes; ++i) s += v[i];
   return s;
 }
-inline bool any8(i8 m) {
-  int32_t r = 0;
-  for (int i = 0; i < kLanes; ++i) r |= m[i];
-  return r != 0;
-}
-inline int count8(i8 m) {
+inline int mask8(i8 m) {
   int r = 0;
-  for (int i = 0; i < kLanes; ++i) r -= m[i];  // true lanes are -1
+  for (int i = 0; i < kLanes; ++i) r |= (m[i] != 0) << i;
   return r;
 }
+#endif
+inline bool any8(i8 m) { return mask8(m) != 0; }
+inline int count8(i8 m) { return __builtin_popcount(mask8(m)); }
 
 // exp(x) for x <= 0 (Cephes polynomial, ~1 ulp); inputs below -87 return ~0.
 inline f8 exp8(f8 x) {

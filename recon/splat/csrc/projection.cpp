@@ -142,7 +142,7 @@ void project_forward(int64_t n, const float* means, const float* quats, const fl
                      const float* opacities, const Camera& cam, float* means2d, float* conics,
                      float* depths, int32_t* radii, int threads) {
   const View view = make_view(cam);
-#pragma omp parallel for num_threads(threads) schedule(static, 1024)
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1024)
   for (int64_t i = 0; i < n; ++i) {
     means2d[2 * i] = means2d[2 * i + 1] = 0.f;
     conics[3 * i] = conics[3 * i + 1] = conics[3 * i + 2] = 0.f;
@@ -183,7 +183,7 @@ void project_backward(int64_t n, const float* means, const float* quats, const f
 #pragma omp parallel num_threads(nt)
   {
     double* vacc = v_view_acc.data() + 12 * omp_get_thread_num();
-#pragma omp for schedule(static, 1024)
+#pragma omp for schedule(dynamic, 1024)
     for (int64_t i = 0; i < n; ++i) {
       float* vm = v_means + 3 * i;
       float* vq = v_quats + 4 * i;

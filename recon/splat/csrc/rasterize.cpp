@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <memory>
 #include <stdexcept>
 #include <string>
 
@@ -111,13 +112,14 @@ void bin_gaussians(const RasterScene& s, int64_t max_pairs, int threads, Binning
   const int64_t m = (int64_t)order.size();
   const int nt = std::max(1, threads);
   // Chunk c of the sorted list counts its pairs per tile; chunks fill in order, so every
-  // tile list stays depth-sorted without a per-tile sort.
-  std::vector<int64_t> counts((size_t)nt * n_tiles, 0);
-  std::vector<int64_t> chunk_pairs(nt, 0);
-#pragma omp parallel num_threads(nt)
-  {
-    const int c = omp_get_thread_num();
-    const int64_t lo = m * c / nt, hi = m * (c + 1) / nt;
+  // tile list stays depth-sorted without a per-tile sort. More chunks than threads, handed out
+  // dynamically, so a thread preempted by another process does not stall the whole pass.
+  const int nc = (int)std::max<int64_t>(1, std::min<int64_t>(4 * nt, m / 256 + 1));
+  std::vector<int64_t> counts((size_t)nc * n_tiles, 0);
+  std::vector<int64_t> chunk_pairs(nc, 0);
+#pragma omp parallel for num_threads(nt) schedule(dynamic, 1)
+  for (int c = 0; c < nc; ++c) {
+    const int64_t lo = m * c / nc, hi = m * (c + 1) / nc;
     int64_t* cnt = counts.data() + (size_t)c * n_tiles;
     int64_t total = 0;
     for (int64_t k = lo; k < hi; ++k) {
@@ -131,7 +133,7 @@ void bin_gaussians(const RasterScene& s, int64_t max_pairs, int threads, Binning
     chunk_pairs[c] = total;
   }
   int64_t pairs = 0;
-  for (int c = 0; c < nt; ++c) pairs += chunk_pairs[c];
+  for (int c = 0; c < nc; ++c) pairs += chunk_pairs[c];
   if (pairs > max_pairs)
     throw std::length_error("rasterization: " + std::to_string(pairs) +
                             " Gaussian-tile intersections exceed the limit of " +
@@ -144,7 +146,7 @@ void bin_gaussians(const RasterScene& s, int64_t max_pairs, int threads, Binning
   int64_t run = 0;
   for (int64_t t = 0; t < n_tiles; ++t) {
     bins.offsets[t] = run;
-    for (int c = 0; c < nt; ++c) {
+    for (int c = 0; c < nc; ++c) {
       const int64_t k = counts[(size_t)c * n_tiles + t];
       start[(size_t)c * n_tiles + t] = run;
       run += k;
@@ -152,10 +154,9 @@ void bin_gaussians(const RasterScene& s, int64_t max_pairs, int threads, Binning
   }
   bins.offsets[n_tiles] = run;
   bins.ids.resize(pairs);
-#pragma omp parallel num_threads(nt)
-  {
-    const int c = omp_get_thread_num();
-    const int64_t lo = m * c / nt, hi = m * (c + 1) / nt;
+#pragma omp parallel for num_threads(nt) schedule(dynamic, 1)
+  for (int c = 0; c < nc; ++c) {
+    const int64_t lo = m * c / nc, hi = m * (c + 1) / nc;
     int64_t* pos = start.data() + (size_t)c * n_tiles;
     for (int64_t k = lo; k < hi; ++k) {
       const int32_t g = order[k];
@@ -268,19 +269,22 @@ void rasterize_backward(const RasterScene& s, const BinView& bins, const float* 
   const int64_t n = s.n;
   const int64_t n_tiles = (int64_t)bins.tiles_x * bins.tiles_y;
   const int nt = std::max(1, threads);
-  // Per-thread gradient buffers, summed at the end: no atomics; the static schedule makes the
-  // result deterministic for a given thread count.
-  std::vector<float> grads((size_t)nt * n * stride, 0.f);
+  // Per-thread gradient buffers, summed at the end: no atomics. Tiles are handed out
+  // dynamically (robust to a core taken by another process), so the summation order, and the
+  // last float bits of a gradient, may differ between runs.
+  std::unique_ptr<float[]> grads(new float[(size_t)nt * n * stride]);
 #pragma omp parallel num_threads(nt)
   {
-    float* gbuf = grads.data() + (size_t)omp_get_thread_num() * n * stride;
+    float* gbuf = grads.get() + (size_t)omp_get_thread_num() * n * stride;
+    std::fill(gbuf, gbuf + (size_t)n * stride, 0.f);
     alignas(32) float T[kTilePixels], SD[kTilePixels], gD[kTilePixels], gAT[kTilePixels];
     alignas(32) int32_t lastk[kTilePixels];
     std::vector<f8> buf((size_t)2 * C * kTilePixels / kLanes + C);
     float* S = reinterpret_cast<float*>(buf.data());  // (C,256) colour composited behind
     float* gC = S + (size_t)C * kTilePixels;          // (C,256) dL/dimage
     f8* gcol = buf.data() + (size_t)2 * C * kTilePixels / kLanes;  // (C) lane accumulators
-#pragma omp for schedule(static, 1)
+#pragma omp barrier
+#pragma omp for schedule(dynamic, 1)
     for (int64_t tile = 0; tile < n_tiles; ++tile) {
       const int px0 = (int)(tile % bins.tiles_x) * kTile, py0 = (int)(tile / bins.tiles_x) * kTile;
       int kmax = -1;
@@ -371,7 +375,7 @@ void rasterize_backward(const RasterScene& s, const BinView& bins, const float* 
         for (int c = 0; c < C; ++c) gr[7 + c] += hsum8(gcol[c]);
       }
     }
-#pragma omp for schedule(static, 2048)
+#pragma omp for schedule(dynamic, 2048)
     for (int64_t i = 0; i < n; ++i) {
       float* outs[7] = {v_means2d + 2 * i, v_means2d + 2 * i + 1, v_conics + 3 * i,
                         v_conics + 3 * i + 1, v_conics + 3 * i + 2, v_opacities + i,

@@ -76,7 +76,7 @@ float unit(const float* d, float u[3]) {
 void sh_forward(int64_t n, int K, int C, int degree, const float* sh, const float* dirs,
                 float* colors, int threads) {
   const int nb = (degree + 1) * (degree + 1);
-#pragma omp parallel for num_threads(threads) schedule(static, 2048)
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 2048)
   for (int64_t i = 0; i < n; ++i) {
     float u[3], Y[16];
     unit(dirs + 3 * i, u);
@@ -94,7 +94,7 @@ void sh_backward(int64_t n, int K, int C, int degree, const float* sh, const flo
                  const float* colors, const float* v_colors, float* v_sh, float* v_dirs,
                  int threads) {
   const int nb = (degree + 1) * (degree + 1);
-#pragma omp parallel for num_threads(threads) schedule(static, 2048)
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 2048)
   for (int64_t i = 0; i < n; ++i) {
     float u[3], Y[16], dY[16][3];
     const float len = unit(dirs + 3 * i, u);
