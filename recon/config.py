@@ -74,7 +74,7 @@ class LossConfig:
     thermal_l1: float = 1.0
     embedding_smoothness: float = 0.05   # E-D3DGS local smoothness of per-Gaussian embeddings
     embedding_knn: int = 8
-    embedding_knn_sample: int = 4096     # Gaussians per step that pay the k-NN term
+    embedding_knn_sample: int = 1024     # Gaussians per step that pay the k-NN term
     embedding_knn_falloff: float = 2000.0  # w = exp(-falloff d^2) for a unit-size scene; scaled by extent^2
     time_smoothness: float = 1e-3    # second difference over time-embedding rows (a real one)
 

@@ -48,6 +48,12 @@ class EmbeddingSmoothness:
         self._n = -1
         self._neighbours: torch.Tensor | None = None
 
+    def state(self) -> dict:
+        return {"n": self._n, "neighbours": self._neighbours}
+
+    def load_state(self, state: dict) -> None:
+        self._n, self._neighbours = state["n"], state["neighbours"]
+
     def __call__(self, means: torch.Tensor, embeddings: list[torch.Tensor],
                  generator: torch.Generator) -> torch.Tensor:
         n = means.shape[0]

@@ -13,7 +13,7 @@ from recon import routing
 from recon.model import DTGModel
 from recon.scene import Camera
 from recon.splat import rasterization
-from recon.splat.cameras import viewmat_from_c2w_opengl
+from recon.data import viewmat_from_c2w_opengl
 
 
 def inference_masks(model: DTGModel) -> dict[str, torch.Tensor] | None:

@@ -87,7 +87,7 @@ class Scene:
         """RGB: ((H, W, 3) in [0, 1], None). Thermal: ((H, W) normalised temperature, valid (H, W))."""
         img = self.dataset.image(view.frame)
         if view.frame.modality == "rgb":
-            return torch.as_tensor(np.asarray(img), dtype=torch.float32), None
+            return torch.tensor(np.asarray(img), dtype=torch.float32), None
         kelvin, valid = img if isinstance(img, tuple) else (img, np.isfinite(img))
         kelvin = torch.as_tensor(np.nan_to_num(np.asarray(kelvin, dtype=np.float32)))
         valid = torch.as_tensor(np.asarray(valid), dtype=torch.bool)

@@ -143,7 +143,7 @@ class Trainer:
                            "lr": self.cfg.lr.time_embedding[0]})
         groups.append({"params": list(self.model.backgrounds.parameters()), "name": "backgrounds",
                        "lr": self.cfg.lr.thermal_background})
-        return torch.optim.Adam(groups, lr=0.0, eps=1e-15)
+        return torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)
 
     def _holdout_views(self):
         """Views for the progress line and the automatic budget: the test views nearest to the
@@ -195,7 +195,7 @@ class Trainer:
             if regularise:
                 kl = routing.kl_to_prior(soft, routing.prior(self.cfg.routing, p))
                 reg = reg + self.cfg.routing.kl_weight * kl
-                stats["kl"] = float(kl)
+                stats["kl"] = float(kl.detach())
         elif self.cfg.model.routing and routing.phase(self.cfg.routing, p) == "frozen":
             mask = inference_masks(self.model)[modality]
         image, out, g = render(self.model, modality, t, view.camera, p,
@@ -211,7 +211,7 @@ class Trainer:
         loss.backward()
         self.optimizer.step()
         self.strategy.accumulate(modality, out.means2d.grad, out.radii, view.camera.width, view.camera.height)
-        stats[f"loss_{modality}"] = float(rec)
+        stats[f"loss_{modality}"] = float(rec.detach())
         return {"stats": stats, "geometry": {k: v.detach() for k, v in g["geometry_residuals"].items()}}
 
     def _regularisers(self, stats: dict):
@@ -221,11 +221,11 @@ class Trainer:
         if keys and cfg.embedding_smoothness > 0:
             e = self.smoothness(model.gaussians["means"], [model.gaussians[k] for k in keys], self.gen)
             reg = reg + cfg.embedding_smoothness * e
-            stats["embed"] = float(e)
+            stats["embed"] = float(e.detach())
         if self.cfg.model.deformation != "none" and cfg.time_smoothness > 0:
             tv = model.time_embedding.temporal_smoothness()
             reg = reg + cfg.time_smoothness * tv
-            stats["time"] = float(tv)
+            stats["time"] = float(tv.detach())
         return reg
 
     def step(self) -> dict:
@@ -341,6 +341,7 @@ class Trainer:
             "strategy": {"grad": self.strategy.stats.grad, "count": self.strategy.stats.count,
                          "growing": self.strategy.growing},
             "auto": {"best": self.best_holdout, "rounds": self.rounds_without_gain},
+            "neighbours": self.smoothness.state(),
             "extent": self.extent,
         }
         tmp = path.with_suffix(".tmp")
@@ -365,6 +366,7 @@ class Trainer:
         trainer.strategy.stats.count = state["strategy"]["count"]
         trainer.strategy.growing = state["strategy"]["growing"]
         trainer.best_holdout, trainer.rounds_without_gain = state["auto"]["best"], state["auto"]["rounds"]
+        trainer.smoothness.load_state(state["neighbours"])
         trainer.extent = state["extent"]
         trainer.strategy.extent = state["extent"]
         return trainer
