@@ -12,6 +12,7 @@ import sys
 
 COMMANDS = [
     "recon.data.cli",
+    "recon.eval.cli",
 ]
 
 
