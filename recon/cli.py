@@ -12,8 +12,12 @@ import sys
 
 COMMANDS = [
     "recon.data.cli",
+<<<<<<< HEAD
     "recon.run",
     "recon.render",
+=======
+    "recon.eval.cli",
+>>>>>>> data
 ]
 
 

@@ -32,6 +32,11 @@ class Instance:
     albedo: Callable[[np.ndarray, np.ndarray], np.ndarray]
     temperature: Callable[[np.ndarray], np.ndarray]
 
+    @property
+    def is_axis_aligned(self) -> bool:
+        """Identity rotation: local directions are world directions (skips a matmul per ray)."""
+        return bool(np.array_equal(self.rotation, np.eye(3)))
+
     def bounding_sphere(self) -> tuple[np.ndarray, float]:
         """World centre (3,) and radius of a sphere enclosing the shape."""
         if isinstance(self.shape, Cylinder):
@@ -84,7 +89,7 @@ def cast(instances: list[Instance], c2w: np.ndarray, fx: float, fy: float, cx: f
             continue
         local_o = inst.rotation.T @ (origin - inst.position)
         local_d = dirs[r0:r1, c0:c1]
-        if not np.array_equal(inst.rotation, np.eye(3)):
+        if not inst.is_axis_aligned:
             local_d = local_d @ inst.rotation.astype(np.float32)
         t = inst.shape.intersect(local_o, local_d)
         closer = t < depth[r0:r1, c0:c1]
@@ -97,8 +102,10 @@ def surface_points(hits: Hits, inst: Instance, k: int) -> tuple[np.ndarray, np.n
     """Flat sample indices (N,), local points (N, 3) and local normals (N, 3) where instance k won."""
     idx = np.flatnonzero(hits.ids.ravel() == k)
     d = hits.dirs.reshape(-1, 3)[idx]
+    if not inst.is_axis_aligned:
+        d = d @ inst.rotation.astype(np.float32)
     local_o = (inst.rotation.T @ (hits.origin - inst.position)).astype(np.float32)
-    local = local_o + hits.depth.ravel()[idx, None] * (d @ inst.rotation.astype(np.float32))
+    local = local_o + hits.depth.ravel()[idx, None] * d
     return idx, local, inst.shape.normal(local)
 
 
@@ -120,9 +127,9 @@ def shade_rgb(hits: Hits, instances: list[Instance], lights: list[tuple[np.ndarr
         idx, p, n = surface_points(hits, inst, k)
         if not len(idx):
             continue
-        n_world = n @ inst.rotation.T
-        irradiance = np.full(len(idx), ambient)
+        n_world = n if inst.is_axis_aligned else n @ inst.rotation.T.astype(np.float32)
+        irradiance = np.full(len(idx), ambient, np.float32)
         for direction, strength in lights:
-            irradiance += strength * np.clip(n_world @ direction, 0, None)
+            irradiance += np.float32(strength) * np.maximum(n_world @ direction.astype(np.float32), 0)
         out[idx] = inst.albedo(p, n) * irradiance[:, None]
     return out.reshape(*hits.ids.shape, 3)

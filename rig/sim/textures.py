@@ -33,7 +33,7 @@ class Texture:
             return np.zeros((0, self.image.shape[2] if self.image.ndim == 3 else 1), np.float32)
         rows = -(-n // _REMAP_COLS)
         maps = np.zeros((2, rows * _REMAP_COLS), np.float32)
-        maps[:, :n] = (uv_m / self.texel_m).T
+        maps[:, :n] = (uv_m / self.texel_m - 0.5).T  # texel i covers [i, i + 1) texel units
         out = cv2.remap(self.image, maps[0].reshape(rows, -1), maps[1].reshape(rows, -1),
                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
         return out.reshape(rows * _REMAP_COLS, -1)[:n]
@@ -136,17 +136,3 @@ def plain_texture(rng: np.random.Generator, color, contrast: float, size_px=(256
     img = np.asarray(color, np.float32) * (1 - contrast + 2 * contrast * noise)[..., None]
     return Texture(np.clip(img, 0.005, 0.95).astype(np.float32), texel_m)
 
-
-def checker_texture(squares=(9, 7), square_m=0.03, px_per_square=64,
-                    margin_squares=1) -> Texture:
-    """Black/white checkerboard with a white margin: a calibration target's printed face.
-
-    Channel 0..2: albedo; texel (0, 0) is the board's corner, x along columns.
-    """
-    cols, rows = squares[0] + 2 * margin_squares, squares[1] + 2 * margin_squares
-    i, j = np.meshgrid(np.arange(cols * px_per_square), np.arange(rows * px_per_square))
-    ci, cj = i // px_per_square - margin_squares, j // px_per_square - margin_squares
-    inside = (ci >= 0) & (ci < squares[0]) & (cj >= 0) & (cj < squares[1])
-    black = inside & ((ci + cj) % 2 == 0)
-    img = np.where(black, 0.03, 0.85).astype(np.float32)
-    return Texture(np.repeat(img[..., None], 3, axis=2), square_m / px_per_square)

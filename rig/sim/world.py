@@ -29,11 +29,14 @@ def supersampling(width: int, height: int) -> int:
 class World:
     """A scene of one variant seen by two rigs. Build with `make_world`."""
 
-    def __init__(self, variant: str, seed: int, rig_config: RigConfig | None = None):
+    def __init__(self, variant: str, seed: int, rig_config: RigConfig | None = None,
+                 scene=None):
+        """`scene` (anything with `settings` and `instances(t)`, e.g. a calibration target)
+        replaces the table-top scene of `variant`."""
         if variant not in VARIANTS:
             raise ValueError(f"unknown variant {variant!r}; choose one of {', '.join(VARIANTS)}")
         self.variant, self.seed = variant, int(seed)
-        self.scene = TableTopScene.build(variant, self.seed)
+        self.scene = scene if scene is not None else TableTopScene.build(variant, self.seed)
         self.settings = self.scene.settings
         self.duration_s = DURATION_S
         self.rig_config = rig_config or RigConfig()
