@@ -12,12 +12,9 @@ import sys
 
 COMMANDS = [
     "recon.data.cli",
-<<<<<<< HEAD
+    "recon.eval.cli",
     "recon.run",
     "recon.render",
-=======
-    "recon.eval.cli",
->>>>>>> data
 ]
 
 
