@@ -81,6 +81,7 @@ def camera_from_args(args, facts: dict) -> Camera:
 
 def render_command(args) -> int:
     from recon import viz
+    from recon.eval.renders import encode_render
 
     model, facts = load_run(Path(args.run))
     camera = camera_from_args(args, facts)
@@ -90,11 +91,10 @@ def render_command(args) -> int:
     for m in model.cfg.modalities:
         img = render_frame(model, m, args.time, camera)
         if m == "rgb":
-            Image.fromarray((img.clamp(0, 1).numpy() * 255 + 0.5).astype(np.uint8)).save(f"{prefix}_rgb.png")
+            Image.fromarray(encode_render(img.numpy(), "rgb", None)).save(f"{prefix}_rgb.png")
         else:
             kelvin = (img[..., 0] * (k_max - k_min) + k_min).numpy()
-            counts = np.clip(np.round(kelvin / facts["thermal_scale_k"]), 1, 65535).astype(np.uint16)
-            Image.fromarray(counts).save(f"{prefix}_thermal.png")
+            Image.fromarray(encode_render(kelvin, "thermal", facts["thermal_scale_k"])).save(f"{prefix}_thermal.png")
             Image.fromarray(viz.thermal_image(kelvin, k_min, k_max)).save(f"{prefix}_thermal_celsius.png")
             print(f"temperature at t={args.time:g}: min {kelvin.min() - 273.15:.1f} C, "
                   f"max {kelvin.max() - 273.15:.1f} C")

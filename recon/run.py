@@ -26,7 +26,7 @@ from PIL import Image
 
 from recon.config import METHODS, config_to_dict, make_config
 from recon.data import load_dataset
-from recon.eval import evaluate_run
+from recon.eval import evaluate_run, write_render, write_results
 from recon.export import export_deformation, export_ply, model_bytes
 from recon.render import render_frame
 from recon.scene import Scene
@@ -34,24 +34,13 @@ from recon.train import Trainer
 from recon import viz
 
 
-def write_render(path: Path, modality: str, image: torch.Tensor, scene: Scene) -> None:
-    """Write a render with the ground truth's encoding: RGB 8-bit PNG, thermal 16-bit counts."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if modality == "rgb":
-        arr = (image.clamp(0, 1).numpy() * 255.0 + 0.5).astype(np.uint8)
-        Image.fromarray(arr).save(path)
-    else:
-        kelvin = scene.kelvin(image[..., 0]).numpy()
-        counts = np.clip(np.round(kelvin / scene.dataset.thermal_scale_k), 1, 65535).astype(np.uint16)
-        Image.fromarray(counts).save(path)
-
-
 def render_test_views(trainer: Trainer, run_dir: Path) -> int:
     n = 0
     for m in trainer.cfg.model.modalities:
         for view in trainer.scene.test[m]:
             image = render_frame(trainer.model, m, view.time, view.camera)
-            write_render(run_dir / "renders" / view.frame.file_path, m, image, trainer.scene)
+            image = image.clamp(0, 1) if m == "rgb" else trainer.scene.kelvin(image[..., 0])
+            write_render(run_dir, view.frame, image.numpy(), trainer.scene.dataset.thermal_scale_k)
             n += 1
     return n
 
@@ -88,11 +77,12 @@ def write_animation(trainer: Trainer, path: Path, frames: int = 24) -> None:
             view = min(scene.test[m] or scene.train[m], key=lambda v: abs(v.time - t))
             pred = render_frame(trainer.model, m, float(t), view.camera)
             if m == "rgb":
-                panels.append((pred.clamp(0, 1).numpy() * 255).astype(np.uint8))
+                panels.append((pred.clamp(0, 1).numpy() * 255 + 0.5).astype(np.uint8))
             else:
                 panels.append(viz.thermal_image(scene.kelvin(pred[..., 0]).numpy(), scene.k_min, scene.k_max))
-        h = min(p.shape[0] for p in panels)
-        images.append(Image.fromarray(np.concatenate([p[:h] for p in panels], axis=1)))
+        h = max(p.shape[0] for p in panels)
+        panels = [np.asarray(Image.fromarray(p).resize((round(p.shape[1] * h / p.shape[0]), h))) for p in panels]
+        images.append(Image.fromarray(np.concatenate(panels, axis=1)))
     images[0].save(path, save_all=True, append_images=images[1:], duration=120, loop=0)
 
 
@@ -100,7 +90,9 @@ def finish(trainer: Trainer, run_dir: Path, dataset_dir: Path) -> dict:
     """Render, grade, draw and export a trained run. Returns the metrics summary."""
     t0 = time.perf_counter()
     n = render_test_views(trainer, run_dir)
-    report = evaluate_run(run_dir, dataset_dir) if n else {}
+    report = evaluate_run(run_dir, dataset_dir, modalities=trainer.cfg.model.modalities) if n else {}
+    if report:
+        write_results(report, run_dir / "eval")
     write_strips(trainer, run_dir)
     write_animation(trainer, run_dir / "animation.gif")
     (run_dir / "export").mkdir(parents=True, exist_ok=True)

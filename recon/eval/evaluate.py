@@ -53,14 +53,15 @@ def frame_metrics(ds: Dataset, frame: Frame, render: np.ndarray, lpips: Lpips | 
 
 
 def evaluate_run(run_dir: str | Path, dataset_dir: str | Path, split: str = "test",
-                 use_lpips: bool = True, progress=None) -> dict:
-    """Metrics of every frame of `split` ('test', 'train' or 'all'), per frame and mean per modality.
+                 use_lpips: bool = True, progress=None, modalities=("rgb", "thermal")) -> dict:
+    """Metrics of every frame of `split` ('test', 'train' or 'all') and of the given modalities
+    (a single-modality method renders only its own), per frame and mean per modality.
 
     Raises RenderError (a ValueError) naming the missing or mismatched render(s) before
     computing anything, and DatasetError for a malformed dataset.
     """
     ds = load_dataset(dataset_dir)
-    frames = [f for f in ds.frames if split == "all" or f.split == split]
+    frames = [f for f in ds.frames if (split == "all" or f.split == split) and f.modality in modalities]
     if not frames:
         raise ValueError(f"{dataset_dir}: no {split} frames to evaluate")
     missing = [str(render_path(run_dir, f)) for f in frames if find_render(run_dir, f) is None]
