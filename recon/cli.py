@@ -13,6 +13,7 @@ import sys
 COMMANDS = [
     "recon.data.cli",
     "recon.eval.cli",
+    "recon.splat.cli",
     "recon.run",
     "recon.render",
 ]

@@ -5,6 +5,8 @@ from dataclasses import dataclass
 
 import torch
 
+from recon.splat.cameras import PinholeCamera as Camera
+
 
 def look_at(campos, target, up=(0.0, -1.0, 0.0)) -> torch.Tensor:
     """(4,4) world-to-camera in OpenCV axes (x right, y down, z forward) looking at target."""
@@ -19,20 +21,6 @@ def look_at(campos, target, up=(0.0, -1.0, 0.0)) -> torch.Tensor:
     view[:3, :3] = rot
     view[:3, 3] = -rot @ campos
     return view.float()
-
-
-@dataclass
-class Camera:
-    viewmat: torch.Tensor
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    width: int
-    height: int
-
-    def args(self) -> tuple:
-        return (self.viewmat, self.fx, self.fy, self.cx, self.cy, self.width, self.height)
 
 
 def default_camera(width=64, height=48, fx=58.0, fy=52.0, cx=None, cy=None) -> Camera:

@@ -5,8 +5,6 @@ move CPU tensors in and out without copies and wire the analytic VJPs into autog
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import torch
 
@@ -21,22 +19,6 @@ def _t(a: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(a)
 
 
-@dataclass(frozen=True)
-class Intrinsics:
-    """Pinhole camera in pixels; pixel (x, y) has its centre at (x + 0.5, y + 0.5)."""
-
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    width: int
-    height: int
-    near_plane: float
-
-    def args(self) -> tuple:
-        return (self.fx, self.fy, self.cx, self.cy, self.width, self.height, self.near_plane)
-
-
 class Project(torch.autograd.Function):
     """(means, quats, log_scales, viewmat) -> means2d (N,2), conics (N,3), depths (N,), radii (N,).
 
@@ -44,9 +26,10 @@ class Project(torch.autograd.Function):
     """
 
     @staticmethod
-    def forward(ctx, means, quats, log_scales, opacities, viewmat, intr: Intrinsics, threads: int):
+    def forward(ctx, means, quats, log_scales, opacities, viewmat, intr: tuple, threads: int):
+        """intr: (fx, fy, cx, cy, width, height, near_plane)."""
         means2d, conics, depths, radii = _native.project_forward(
-            _np(means), _np(quats), _np(log_scales), _np(opacities), _np(viewmat), *intr.args(), threads
+            _np(means), _np(quats), _np(log_scales), _np(opacities), _np(viewmat), *intr, threads
         )
         radii_t = _t(radii)
         ctx.save_for_backward(means, quats, log_scales, viewmat, radii_t)
@@ -58,7 +41,7 @@ class Project(torch.autograd.Function):
     def backward(ctx, v_means2d, v_conics, v_depths, _v_radii):
         means, quats, log_scales, viewmat, radii = ctx.saved_tensors
         v_means, v_quats, v_scales, v_view = _native.project_backward(
-            _np(means), _np(quats), _np(log_scales), _np(radii), _np(viewmat), *ctx.intr.args(),
+            _np(means), _np(quats), _np(log_scales), _np(radii), _np(viewmat), *ctx.intr,
             _np(v_means2d), _np(v_conics), _np(v_depths), ctx.threads,
         )
         return _t(v_means), _t(v_quats), _t(v_scales), None, _t(v_view), None, None

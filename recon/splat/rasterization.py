@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import torch
 
-from recon.splat._functions import EvalSH, Intrinsics, Project, Rasterize
+from recon.splat._functions import EvalSH, Project, Rasterize
 
 DEPTH_EPS = 1e-10
 MAX_TILE_PAIRS = 1 << 28  # 1 GiB of tile lists; beyond this a clear MemoryError
@@ -132,7 +132,7 @@ def rasterization(
     channels = colors.shape[1]
     if background is not None:
         _check("background", background, (channels,), (torch.float32, torch.float64))
-    intr = Intrinsics(float(fx), float(fy), float(cx), float(cy), width, height, float(near_plane))
+    intr = (float(fx), float(fy), float(cx), float(cy), width, height, float(near_plane))
     means2d, conics, depths, radii = Project.apply(means, quats, log_scales, opacities, viewmat, intr, threads)
     if means2d.requires_grad:
         means2d.retain_grad()
