@@ -146,12 +146,19 @@ class Trainer:
         return torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)
 
     def _holdout_views(self):
-        """Views for the progress line and the automatic budget: the test views nearest to the
-        middle of the sequence (the automatic budget only compares the run with itself)."""
+        """Views for the progress line and, with the automatic budget, for deciding when to stop
+        growing. The progress line shows the test view nearest the middle of the sequence; the
+        automatic budget must not look at test data, so it holds out every 8th training time step
+        instead (those steps are then not trained on)."""
         out = {}
+        held = set(self.scene.times[4::8]) if self.cfg.densify.auto_stop else set()
+        self.train_times = [t for t in self.scene.times if t not in held]
         for m in self.cfg.model.modalities:
-            views = self.scene.test[m] or self.scene.train[m]
-            out[m] = min(views, key=lambda v: abs(v.time - 0.5)) if views else None
+            if held:
+                out[m] = [v for v in self.scene.train[m] if v.time in held]
+            else:
+                views = self.scene.test[m] or self.scene.train[m]
+                out[m] = [min(views, key=lambda v: abs(v.time - 0.5))] if views else []
         return out
 
     # ------------------------------------------------------------------ schedule
@@ -163,10 +170,19 @@ class Trainer:
     def done(self) -> bool:
         return self.progress() >= 1.0
 
+    def expected_iterations(self) -> float:
+        """Iterations this run will make: the budget, or with --minutes the pace so far."""
+        if self.cfg.minutes and self.iteration >= 20 and self.progress() > 0:
+            return self.iteration / self.progress()
+        return float(self.cfg.iterations)
+
     def _update_lrs(self, p: float) -> None:
         lr = self.cfg.lr
+        routing_scale = max(1.0, self.cfg.routing.lr_reference_iterations / max(self.expected_iterations(), 1.0))
         for group in self.optimizer.param_groups:
-            if group["name"] == "means":
+            if group["name"] == "route_logits":
+                group["lr"] = self.cfg.routing.lr * routing_scale
+            elif group["name"] == "means":
                 group["lr"] = log_lerp(*lr.means_scene, p) * self.extent
             elif group["name"] == "deformation":
                 group["lr"] = log_lerp(*lr.deformation_scene, p) * self.extent
@@ -233,7 +249,7 @@ class Trainer:
         start = time.perf_counter()
         p = self.progress()
         self._update_lrs(p)
-        t = self.scene.times[int(torch.randint(len(self.scene.times), (1,), generator=self.gen))]
+        t = self.train_times[int(torch.randint(len(self.train_times), (1,), generator=self.gen))]
         mods = [m for m in ("rgb", "thermal") if m in self.cfg.model.modalities and self.scene.views_at(m, t)]
         noise = self._routing_noise(p)
         stats, rgb_geometry = {}, None
@@ -254,15 +270,17 @@ class Trainer:
     def holdout_psnr(self) -> dict[str, float]:
         from recon.render import render_frame
         out = {}
-        for m, view in self.holdout.items():
-            if view is None:
-                continue
-            pred = render_frame(self.model, m, view.time, view.camera)
-            target, valid = self.scene.target(view)
-            if m == "rgb":
-                out[m] = float(psnr(pred.clamp(0, 1), target))
-            else:
-                out[m] = float(psnr(pred[..., 0].clamp(0, 1), target, mask=valid))
+        for m, views in self.holdout.items():
+            scores = []
+            for view in views:
+                pred = render_frame(self.model, m, view.time, view.camera)
+                target, valid = self.scene.target(view)
+                if m == "rgb":
+                    scores.append(float(psnr(pred.clamp(0, 1), target)))
+                else:
+                    scores.append(float(psnr(pred[..., 0].clamp(0, 1), target, mask=valid)))
+            if scores:
+                out[m] = sum(scores) / len(scores)
         return out
 
     def _auto_budget(self, scores: dict[str, float]) -> None:

