@@ -16,6 +16,7 @@ COMMANDS = [
     "recon.splat.cli",
     "recon.run",
     "recon.render",
+    "recon.demo",
 ]
 
 

@@ -36,6 +36,12 @@ class ModelConfig:
     time_rows_fine_start: float = 0.4   # fine rows grow from this fraction of their final count...
     time_c2f_until: float = 0.5         # ...to all rows at this progress (E-D3DGS coarse-to-fine)
     mlp_width: int = 64
+    # Which residuals the deformation predicts besides geometry. E-D3DGS's monocular (HyperNeRF
+    # vrig) configs deform geometry only: with one view per instant, colour and opacity residuals
+    # let a model paint each training view instead of moving Gaussians, which breaks novel views.
+    # Temperature really changes over time, so thermal features deform by default.
+    deform_opacity: tuple[str, ...] = ()
+    deform_features: tuple[str, ...] = ("thermal",)
     # Thermal stage reuses the first stage's residuals detached: thermal loss reaches the shared
     # canonical geometry through F_th but does not reshape F_rgb (paper 3.3).
     thermal_grad_to_rgb_deformation: bool = False
@@ -44,6 +50,8 @@ class ModelConfig:
 
     def __post_init__(self):
         self.modalities = tuple(self.modalities)
+        self.deform_opacity = tuple(self.deform_opacity)
+        self.deform_features = tuple(self.deform_features)
         bad = [m for m in self.modalities if m not in MODALITIES]
         if bad or not self.modalities:
             raise ValueError(f"modalities must be a non-empty subset of {MODALITIES}, got {self.modalities}")

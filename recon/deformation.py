@@ -37,6 +37,9 @@ def geometry_outputs() -> dict[str, int]:
     return {"means": 3, "quats": 4, "log_scales": 3}
 
 
-def modality_outputs(modality: str, feature_size: int) -> dict[str, int]:
-    """Residuals of one modality's opacity logit (1) and features (flattened SH)."""
-    return {f"opacity_{modality}": 1, f"features_{modality}": feature_size}
+def modality_outputs(modality: str, feature_size: int, opacity: bool, features: bool) -> dict[str, int]:
+    """Residuals of one modality's opacity logit (1) and features (flattened SH), where enabled."""
+    out = {f"opacity_{modality}": 1} if opacity else {}
+    if features:
+        out[f"features_{modality}"] = feature_size
+    return out

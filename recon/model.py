@@ -57,7 +57,7 @@ class DTGModel(nn.Module):
                 outs = geometry_outputs()
                 for m in (cfg.modalities if stage == "shared" else [stage]):
                     k, c = feature_shape(cfg, m)
-                    outs.update(modality_outputs(m, k * c))
+                    outs.update(modality_outputs(m, k * c, m in cfg.deform_opacity, m in cfg.deform_features))
                 self.deformers[stage] = DeformationNet(cfg.time_embedding_dim, cfg.gaussian_embedding_dim,
                                                        cfg.mlp_width, outs)
 
@@ -100,8 +100,10 @@ class DTGModel(nn.Module):
                     first = {k: v.detach() for k, v in first.items()}
                 applied = {k: first[k] + res[k] for k in GEOMETRY}
             geo = {k: geo[k] + applied[k] for k in GEOMETRY}
-            opacity_logit = opacity_logit + res[f"opacity_{modality}"][:, 0]
-            features = features + res[f"features_{modality}"].view_as(features)
+            if f"opacity_{modality}" in res:
+                opacity_logit = opacity_logit + res[f"opacity_{modality}"][:, 0]
+            if f"features_{modality}" in res:
+                features = features + res[f"features_{modality}"].view_as(features)
         opacities = torch.sigmoid(opacity_logit)
         if mask is not None:
             opacities = opacities * mask

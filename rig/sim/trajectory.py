@@ -1,8 +1,11 @@
 """Handheld rig motion: a slow sweep around the table plus seeded hand shake.
 
-Rig 0 sweeps +-45 degrees of azimuth at 35 degrees elevation; rig 1 sweeps a narrower arc from
-higher up in the opposite phase, so at every instant the two rigs see the scene from
-different sides while their coverage overlaps (rig 1 is the held-out test camera).
+Rig 0 sweeps +-50 degrees of azimuth while its elevation drifts between about 25 and 49
+degrees; rig 1 sweeps a narrower arc (-15..35 degrees) at 40-48 degrees in the opposite phase.
+At every instant the two rigs see the scene from different sides, but over the sequence rig 0
+covers every direction rig 1 looks from, so rig 1 (the held-out test camera) asks a model for
+novel views *within* the captured coverage, as the Nerfies/HyperNeRF vrig protocol intends,
+not for extrapolation.
 """
 from __future__ import annotations
 
@@ -22,6 +25,7 @@ class HandheldPath:
     azimuth_deg: float          # centre of the sweep; 0 = standing at -y looking towards +y
     sweep_deg: float            # amplitude of the sweep
     elevation_deg: float
+    elevation_sweep_deg: float  # slow drift of elevation, period 0.7 of the azimuth sweep
     radius_m: float
     phase: float                # +1 or -1: direction of the sweep
     period_s: float             # one full back-and-forth sweep
@@ -32,7 +36,7 @@ class HandheldPath:
     @classmethod
     def for_rig(cls, rig: int, seed: int, period_s: float, shake: float) -> "HandheldPath":
         rng = np.random.default_rng([seed, 0x5A4E, rig])
-        base = {0: (0.0, 45.0, 35.0, 0.60, 1.0), 1: (10.0, 25.0, 50.0, 0.55, -1.0)}[rig]
+        base = {0: (0.0, 50.0, 37.0, 12.0, 0.60, 1.0), 1: (10.0, 25.0, 44.0, 4.0, 0.55, -1.0)}[rig]
         return cls(*base, period_s=period_s, shake_m=0.003 * shake,
                    shake_freqs=rng.uniform(0.3, 1.8, size=(3, 3)),
                    shake_phases=rng.uniform(0, 2 * np.pi, size=(3, 3)))
@@ -45,7 +49,7 @@ class HandheldPath:
         """(4, 4) float64 OpenCV camera-to-world at time t seconds."""
         s = self.phase * np.sin(2 * np.pi * t / self.period_s)
         az = np.radians(self.azimuth_deg + self.sweep_deg * s)
-        el = np.radians(self.elevation_deg + 4.0 * np.sin(2 * np.pi * t / (0.7 * self.period_s)))
+        el = np.radians(self.elevation_deg + self.elevation_sweep_deg * np.sin(2 * np.pi * t / (0.7 * self.period_s)))
         eye = TARGET + self.radius_m * np.array([np.cos(el) * np.sin(az), -np.cos(el) * np.cos(az),
                                                  np.sin(el)])
         shake = self._shake(t)
