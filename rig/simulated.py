@@ -42,7 +42,8 @@ LAMP_BOX = (0.02, 0.02, 0.10, 0.10)      # x0, y0, x1, y1 as a fraction of the i
 
 
 class Lamp:
-    """Switch history of the sync-box lamp; `level(t)` in 0..1, thermal lag `tau_s`."""
+    """Switch history of the sync-box lamp in scene time; `on(t)`, and `heat(t)` in 0..1 with
+    the bulb's thermal lag `tau_s`."""
 
     def __init__(self, tau_s: float = 0.03):
         self.tau_s = tau_s
@@ -171,12 +172,28 @@ class WorldScene:
         return np.clip(img, 0, 255).astype(np.uint8)
 
 
+class ScaledScene:
+    """Render a scene at 1/`factor` of the asked size and upscale: live 30 Hz on a small CPU."""
+
+    def __init__(self, scene, factor: int = 4):
+        self.scene, self.factor = scene, factor
+
+    def temperature(self, t: float, w: int, h: int) -> np.ndarray:
+        k = self.scene.temperature(t, max(8, w // self.factor), max(6, h // self.factor))
+        return cv2.resize(k, (w, h), interpolation=cv2.INTER_LINEAR)
+
+    def rgb(self, t: float, w: int, h: int) -> np.ndarray:
+        img = self.scene.rgb(t, max(8, w // self.factor), max(6, h // self.factor))
+        return cv2.resize(img, (w, h), interpolation=cv2.INTER_LINEAR)
+
+
 def default_scene(seed: int = 0, lamp: Lamp | None = None):
-    """The simulated world if `rig.sim` is available, else the synthetic scene."""
+    """The simulated world if `rig.sim` is available (WorldScene renders small keyframes
+    itself), else the synthetic scene rendered at quarter size."""
     try:
         from rig.sim import make_world
     except ImportError:
-        return SyntheticScene(seed, lamp=lamp)
+        return ScaledScene(SyntheticScene(seed, lamp=lamp))
     return WorldScene(make_world("default", seed=seed), lamp=lamp)
 
 

@@ -35,11 +35,11 @@ def thumbnail(img: np.ndarray) -> np.ndarray:
     return cv2.resize(a, THUMB_SIZE, interpolation=cv2.INTER_AREA)
 
 
-CELLS = 3                      # change energy is kept per cell of a CELLS x CELLS grid
+CELLS = 5                      # change energy is kept per cell of a CELLS x CELLS grid
 
 
 def change_energy(prev: np.ndarray | None, cur: np.ndarray) -> list[float]:
-    """Mean absolute difference of two thumbnails in each cell of a 3x3 grid (row-major),
+    """Mean absolute difference of two thumbnails in each cell of a CELLS x CELLS grid (row-major),
     zeros without a previous one. Per-cell signals tell apart objects moving in different
     parts of the view, which a single number mixes up."""
     if prev is None:
@@ -230,12 +230,12 @@ def file_offsets(files: dict[str, dict], ref_t: np.ndarray, ref_e: np.ndarray,
                     rows.append((a + WINDOW_S / 2 - mid, o - off))
         out.append(fs)
     drift, residual = 0.0, None
-    if len(rows) >= 3:
+    if len(rows) >= 2:
         x, y = np.array(rows).T
         slope = float((x * y).sum() / (x * x).sum()) if (x * x).sum() > 0 else 0.0
         resid = y - slope * x
-        se = float(np.sqrt((resid ** 2).sum() / (len(x) - 1) / max((x * x).sum(), 1e-12)))
-        if abs(slope) > MIN_DRIFT_SIGMAS * se and abs(slope) < MAX_DRIFT:
+        se = float(np.sqrt((resid ** 2).sum() / max(len(x) - 1, 1) / max((x * x).sum(), 1e-12)))
+        if len(rows) >= 3 and abs(slope) > MIN_DRIFT_SIGMAS * se and abs(slope) < MAX_DRIFT:
             drift = slope
         else:                         # not measurable from these windows: no drift term
             resid = y
@@ -271,11 +271,15 @@ def synchronise(thermal: list[dict], rgb: list[dict], events: list[dict], tick_h
     gaps = thermal_gaps(th_t, np.array([r.get("dropped_before", 0) for r in th]))
     files: dict[str, dict] = {}
     realtime_minus_mono = (host_epoch["realtime_ns"] - host_epoch["monotonic_ns"]) / 1e9
+    file_info = {e["file"]: e for e in events if e.get("event") == "rgb_file"}
     for r in rgb:
         f = files.setdefault(r["file"], {"t": [], "motion": [], "nominal_start_s": None})
         if f["nominal_start_s"] is None:
-            cu = r.get("creation_unix_s")
-            f["nominal_start_s"] = (cu - realtime_minus_mono) if cu is not None else r["host_ns"] / 1e9
+            info = {**file_info.get(r["file"], {}), **r}
+            if info.get("creation_unix_s") is not None:
+                f["nominal_start_s"] = info["creation_unix_s"] - realtime_minus_mono
+            else:                   # no creation date: the file ended when it arrived
+                f["nominal_start_s"] = info.get("host_ns", 0) / 1e9 - info.get("duration_s", 0.0)
         f["t"].append(f["nominal_start_s"] + r["pts_s"])
         f["motion"].append(r["motion"])
     switches = np.array([e["host_s"] for e in events if e.get("event") == "marker" and "host_s" in e])
@@ -311,3 +315,16 @@ def pair_frames(thermal_s: np.ndarray, rgb_s: np.ndarray, max_dt_s: float) -> li
         if abs(srt[c] - t) <= max_dt_s:
             out.append((i, int(order[c]), float(srt[c] - t)))
     return out
+
+
+def synchronise_session(session) -> SyncResult:
+    """`synchronise` on what a `rig.session.Session` has committed so far. Markers are put on
+    the host clock with the sync box's last clock estimate (a `syncbox_clock` event)."""
+    events = list(session.events)
+    clocks = [e for e in events if e.get("event") == "syncbox_clock"]
+    if clocks:
+        rate, offset = clocks[-1]["rate"], clocks[-1]["offset"]
+        events = [{**e, "host_s": rate * e["box_us"] / 1e6 + offset}
+                  if e.get("event") == "marker" and "box_us" in e else e for e in events]
+    tick_hz = session.meta.get("thermal", {}).get("tick_hz", 1e9)
+    return synchronise(session.thermal, session.rgb, events, tick_hz, session.meta["host_clock"])

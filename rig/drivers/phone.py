@@ -156,6 +156,11 @@ class DropFolder:
                 ready.append(p)
         return ready
 
+    def pending(self) -> list[Path]:
+        """Wanted files seen in the folder and not yet handed over."""
+        return [p for p in self.path.iterdir()
+                if p.is_file() and self.wanted(p) and p not in self._done]
+
     def mark_done(self, path: Path) -> None:
         self._done.add(path)
         self._seen.pop(path, None)

@@ -6,13 +6,14 @@ Line protocol (ASCII, one command or report per line, 115200 baud):
     host -> box                       box -> host
     HELLO                             SYNCBOX <version> <serial>
     PING <seq>                        PONG <seq> <t_us>          (box clock when PING arrived)
-    START <period_ms> <on_ms>         OK                         lamp pulses every period_ms
+    START <period_ms> <on_ms>         OK                         lamp pulses about every period_ms
     LAMP <0|1>                        OK                         one manual switch
     STOP                              OK
                                       MARK <n> <t_us> <0|1>      every lamp switch (unsolicited)
                                       ERR <text>
 
-The box clock is mapped to the host's monotonic clock from PING round trips: the offset is
+Pulse intervals vary pseudo-randomly within +-40 % of period_ms: a periodic train would match a
+video at any whole number of periods. The box clock is mapped to the host's monotonic clock from PING round trips: the offset is
 taken from the exchanges with the shortest round trip (the tightest bound), and a drift is fitted
 once pings span time.
 """

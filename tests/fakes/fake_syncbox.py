@@ -6,6 +6,7 @@ and passed to `on_lamp(state, host_monotonic_s)` (the simulated rig draws the la
 from __future__ import annotations
 
 import os
+import random
 import threading
 import time
 import tty
@@ -88,8 +89,10 @@ class FakeSyncBox:
             self._pulse.join()
         self._pulse_stop = stop = threading.Event()
 
+        rng = random.Random(self.n)
+
         def pulse():
-            while not stop.wait(period_s - on_s):
+            while not stop.wait(period_s * rng.uniform(0.6, 1.4) - on_s):
                 self.switch(1)
                 if stop.wait(on_s):
                     break
