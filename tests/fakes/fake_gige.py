@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import collections
 import io
+import json
 import math
 import random
 import socket
@@ -454,7 +455,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         sys.stdin.read()          # run until stdin closes
     finally:
-        print(dict(cam.stats), file=sys.stderr, flush=True)
+        print(json.dumps(dict(cam.stats)), file=sys.stderr, flush=True)
         cam.stop()
     return 0
 

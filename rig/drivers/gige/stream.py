@@ -65,6 +65,7 @@ class StreamStats:
     resend_requested_packets: int = 0
     resent_packets: int = 0      # arrived flagged as resent
     resyncs: int = 0             # block-id discontinuities (acquisition restarted)
+    evicted: int = 0             # blocks closed early because too many were in flight
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -268,12 +269,14 @@ class Reassembler:
         self._blocks[block_id] = blk
         if len(self._blocks) > self.config.max_in_flight:
             oldest = next(b for b in self._blocks.values() if not b.done)
+            self.stats.evicted += 1
             self._finish(oldest, now, complete=False)
         return blk
 
     # -- timers -----------------------------------------------------------------------------
-    def tick(self, now: int) -> None:
-        """Request resends that are due and give up blocks that went quiet."""
+    def tick(self, now: int, idle: bool = True) -> None:
+        """Request resends that are due and give up blocks that went quiet. `idle`: the socket
+        was found empty, so the newest block's silence is real, not packets still queued."""
         cfg = self.config
         retention = int(cfg.frame_retention_s * 1e9)
         initial = int(cfg.initial_packet_timeout_s * 1e9)
@@ -281,13 +284,16 @@ class Reassembler:
         for blk in list(self._blocks.values()):
             if blk.done:
                 continue
-            if now - blk.last_ns > retention:
+            newest = blk.block_id == self._last_block
+            silent = now - blk.last_ns
+            if (idle or not newest) and silent > retention:
                 self._finish(blk, now, complete=False)
                 continue
             if self.request_resend is None or blk.give_up_resend:
                 continue
-            newest = blk.block_id == self._last_block
-            if blk.highest < blk.n_data and (not newest or now - blk.last_ns > initial):
+            # the tail is lost once a newer block started, or after a long silence (a sender
+            # may pause mid-block for a few ms; then the tail is merely late)
+            if blk.highest < blk.n_data and (not newest or (idle and silent > interval)):
                 for p in range(blk.highest + 1, blk.n_data + 1):   # the tail never arrived
                     if not blk.got[p] and p not in blk.missing:
                         blk.missing[p] = [blk.last_ns, 0]
@@ -447,7 +453,7 @@ class GvspStream:
                     self.last_packet_ns = now
                     feed(view[:n], now)
                 if now - last_tick >= tick_every or n < 0:
-                    tick(now)
+                    tick(now, idle=n < 0)
                     last_tick = now
             self.cpu_s = time.thread_time() - cpu0
         with self._lock:
