@@ -1,0 +1,96 @@
+// Shared constants, the 8-lane float vector type and helpers of the CPU Gaussian rasterizer.
+// GCC vector extensions (not intrinsics): they compile to AVX2 ymm code when built with
+// -mavx2/-march=native and still build (as SSE pairs) anywhere else.
+#pragma once
+#include <cmath>
+#include <cstdint>
+#include <algorithm>
+
+namespace splat {
+
+constexpr float kAlphaMin = 1.0f / 255.0f;  // contributions below this are skipped (3DGS)
+constexpr float kAlphaMax = 0.99f;          // alpha clamp (3DGS)
+constexpr float kTransMin = 1e-4f;          // a pixel stops before T would fall below this
+constexpr double kBlur = 0.3;               // low-pass added to the 2D covariance diagonal
+constexpr int kTile = 16;                   // tile side in pixels; rows are 2 strips of 8 lanes
+constexpr int kLanes = 8;
+
+typedef float f8 __attribute__((vector_size(32)));
+typedef int32_t i8 __attribute__((vector_size(32)));
+
+inline f8 splat8(float x) { return f8{x, x, x, x, x, x, x, x}; }
+inline i8 spliti8(int32_t x) { return i8{x, x, x, x, x, x, x, x}; }
+inline f8 select8(i8 m, f8 a, f8 b) { return m ? a : b; }
+#ifdef __AVX__
+#include <immintrin.h>
+inline float hsum8(f8 v) {
+  const __m128 lo = _mm256_castps256_ps128((__m256)v), hi = _mm256_extractf128_ps((__m256)v, 1);
+  __m128 s = _mm_add_ps(lo, hi);
+  s = _mm_add_ps(s, _mm_movehl_ps(s, s));
+  s = _mm_add_ss(s, _mm_movehdup_ps(s));
+  return _mm_cvtss_f32(s);
+}
+inline int mask8(i8 m) { return _mm256_movemask_ps((__m256)m); }
+#else
+inline float hsum8(f8 v) {
+  float s = 0.f;
+  for (int i = 0; i < kLanes; ++i) s += v[i];
+  return s;
+}
+inline int mask8(i8 m) {
+  int r = 0;
+  for (int i = 0; i < kLanes; ++i) r |= (m[i] != 0) << i;
+  return r;
+}
+#endif
+inline bool any8(i8 m) { return mask8(m) != 0; }
+inline int count8(i8 m) { return __builtin_popcount(mask8(m)); }
+
+// exp(x) for x <= 0 (Cephes polynomial, ~1 ulp); inputs below -87 return ~0.
+inline f8 exp8(f8 x) {
+  x = x < splat8(-87.0f) ? splat8(-87.0f) : x;
+  x = x > splat8(0.0f) ? splat8(0.0f) : x;
+  const f8 fx = x * splat8(1.44269504088896341f);
+  // round to nearest: floor(fx + 0.5) via truncation of a value shifted positive
+  i8 n = __builtin_convertvector(fx - splat8(0.5f), i8);  // trunc toward zero of negative = ceil
+  f8 nf = __builtin_convertvector(n, f8);
+  // trunc(fx - 0.5) for fx <= 0 is ceil(fx - 0.5) = round-half-down: fine for range reduction
+  f8 r = x - nf * splat8(0.693359375f) + nf * splat8(2.12194440e-4f);
+  f8 p = splat8(1.9875691500E-4f);
+  p = p * r + splat8(1.3981999507E-3f);
+  p = p * r + splat8(8.3334519073E-3f);
+  p = p * r + splat8(4.1665795894E-2f);
+  p = p * r + splat8(1.6666665459E-1f);
+  p = p * r + splat8(5.0000001201E-1f);
+  p = p * r * r + r + splat8(1.0f);
+  i8 e = (n + spliti8(127)) << 23;
+  f8 scale;
+  __builtin_memcpy(&scale, &e, sizeof(scale));
+  return p * scale;
+}
+
+// Pixel bounding box [x0,x1]x[y0,y1] (inclusive, clipped to the image) of the region where a
+// Gaussian can reach alpha >= 1/255: o*exp(-q/2) >= 1/255  <=>  q <= 2 ln(255 o). Its extent
+// along x is sqrt(r2 * Sigma_xx) (likewise y), Sigma = inverse conic. Pixel centres are at
+// (x+0.5, y+0.5). A small relative margin keeps the box conservative against float rounding
+// of the per-pixel evaluation. Returns false when the region misses the image.
+inline bool gaussian_bbox(float mx, float my, float ca, float cb, float cc, float opacity,
+                          int width, int height, int32_t box[4]) {
+  if (!(opacity >= kAlphaMin)) return false;
+  const double det = (double)ca * cc - (double)cb * cb;
+  if (!(det > 0.0)) return false;
+  const double r2 = 2.0 * std::log(255.0 * (double)opacity) * 1.001 + 1e-3;
+  const double ex = std::sqrt(r2 * (double)cc / det);
+  const double ey = std::sqrt(r2 * (double)ca / det);
+  const double fx0 = std::ceil(mx - ex - 0.5), fx1 = std::floor(mx + ex - 0.5);
+  const double fy0 = std::ceil(my - ey - 0.5), fy1 = std::floor(my + ey - 0.5);
+  if (!(fx1 >= 0.0 && fx0 <= width - 1.0 && fy1 >= 0.0 && fy0 <= height - 1.0)) return false;
+  if (!(fx0 <= fx1 && fy0 <= fy1)) return false;
+  box[0] = (int32_t)std::max(0.0, fx0);
+  box[1] = (int32_t)std::min(width - 1.0, fx1);
+  box[2] = (int32_t)std::max(0.0, fy0);
+  box[3] = (int32_t)std::min(height - 1.0, fy1);
+  return true;
+}
+
+}  // namespace splat

@@ -1,0 +1,392 @@
+// Loop shape (measured fastest on these CPUs, see README): per tile, Gaussians outer in depth
+// order, pixels inner as 8-lane strips. Each Gaussian only visits the strips of its own
+// opacity-aware pixel box, so small Gaussians cost a few strips instead of the whole tile.
+#include "rasterize.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cstring>
+#include <memory>
+#include <stdexcept>
+#include <string>
+
+#include "common.h"
+
+namespace splat {
+namespace {
+
+constexpr int kTilePixels = kTile * kTile;
+constexpr int kStrips = kTile / kLanes;
+
+const f8 kLaneOffset = {0.5f, 1.5f, 2.5f, 3.5f, 4.5f, 5.5f, 6.5f, 7.5f};
+
+uint32_t sort_key(float z) {
+  uint32_t u;
+  std::memcpy(&u, &z, 4);
+  return (u & 0x80000000u) ? ~u : (u | 0x80000000u);  // order-preserving for all floats
+}
+
+// Stable LSD radix sort of idx by key (11-bit digits, 3 passes).
+void radix_sort(std::vector<uint32_t>& key, std::vector<int32_t>& idx) {
+  const size_t n = key.size();
+  std::vector<uint32_t> key2(n);
+  std::vector<int32_t> idx2(n);
+  for (int shift = 0; shift < 32; shift += 11) {
+    size_t count[2049] = {0};
+    for (size_t i = 0; i < n; ++i) ++count[((key[i] >> shift) & 2047u) + 1];
+    for (int b = 0; b < 2048; ++b) count[b + 1] += count[b];
+    for (size_t i = 0; i < n; ++i) {
+      const size_t pos = count[(key[i] >> shift) & 2047u]++;
+      key2[pos] = key[i];
+      idx2[pos] = idx[i];
+    }
+    key.swap(key2);
+    idx.swap(idx2);
+  }
+}
+
+struct TileBox {
+  int row0, row1;      // tile-local rows, inclusive
+  int strip0, strip1;  // strips of 8 lanes, inclusive
+};
+
+inline TileBox tile_box(const int32_t* box, int px0, int py0) {
+  TileBox t;
+  t.row0 = std::max(box[2], py0) - py0;
+  t.row1 = std::min(box[3], py0 + kTile - 1) - py0;
+  t.strip0 = (std::max(box[0], px0) - px0) / kLanes;
+  t.strip1 = (std::min(box[1], px0 + kTile - 1) - px0) / kLanes;
+  return t;
+}
+
+struct GaussianParams {
+  float mx, my, a, b, c, o, z;
+};
+
+inline GaussianParams load_gaussian(const RasterScene& s, int32_t g) {
+  return {s.means2d[2 * g], s.means2d[2 * g + 1], s.conics[3 * g], s.conics[3 * g + 1],
+          s.conics[3 * g + 2], s.opacities[g], s.depths[g]};
+}
+
+// power = -q/2 of the pixel strip starting at pixel column x (lanes x..x+7) in row y.
+inline f8 strip_power(const GaussianParams& p, int x, int y, f8& dx, float& dy) {
+  dx = kLaneOffset + splat8((float)x) - splat8(p.mx);
+  dy = (float)y + 0.5f - p.my;
+  return splat8(-0.5f) * (splat8(p.a) * dx * dx + splat8(p.c * dy * dy)) -
+         splat8(p.b * dy) * dx;
+}
+
+}  // namespace
+
+void bin_gaussians(const RasterScene& s, int64_t max_pairs, int threads, Binning& bins) {
+  const int64_t n = s.n;
+  bins.tiles_x = (s.width + kTile - 1) / kTile;
+  bins.tiles_y = (s.height + kTile - 1) / kTile;
+  const int64_t n_tiles = (int64_t)bins.tiles_x * bins.tiles_y;
+  bins.boxes.assign(4 * n, 0);
+  std::vector<uint8_t> visible(n, 0);
+#pragma omp parallel for num_threads(threads) schedule(static, 2048)
+  for (int64_t i = 0; i < n; ++i) {
+    int32_t* box = bins.boxes.data() + 4 * i;
+    box[0] = 0;
+    box[1] = -1;
+    box[2] = 0;
+    box[3] = -1;
+    if (s.radii[i] <= 0) continue;
+    visible[i] = gaussian_bbox(s.means2d[2 * i], s.means2d[2 * i + 1], s.conics[3 * i],
+                               s.conics[3 * i + 1], s.conics[3 * i + 2], s.opacities[i],
+                               s.width, s.height, box);
+    if (!visible[i]) box[1] = box[3] = -1;
+  }
+  std::vector<int32_t> order;
+  std::vector<uint32_t> keys;
+  order.reserve(n);
+  keys.reserve(n);
+  for (int64_t i = 0; i < n; ++i)
+    if (visible[i]) {
+      order.push_back((int32_t)i);
+      keys.push_back(sort_key(s.depths[i]));
+    }
+  radix_sort(keys, order);  // stable: equal depths keep index order
+  const int64_t m = (int64_t)order.size();
+  const int nt = std::max(1, threads);
+  // Chunk c of the sorted list counts its pairs per tile; chunks fill in order, so every
+  // tile list stays depth-sorted without a per-tile sort. More chunks than threads, handed out
+  // dynamically, so a thread preempted by another process does not stall the whole pass.
+  const int nc = (int)std::max<int64_t>(1, std::min<int64_t>(4 * nt, m / 256 + 1));
+  std::vector<int64_t> counts((size_t)nc * n_tiles, 0);
+  std::vector<int64_t> chunk_pairs(nc, 0);
+#pragma omp parallel for num_threads(nt) schedule(dynamic, 1)
+  for (int c = 0; c < nc; ++c) {
+    const int64_t lo = m * c / nc, hi = m * (c + 1) / nc;
+    int64_t* cnt = counts.data() + (size_t)c * n_tiles;
+    int64_t total = 0;
+    for (int64_t k = lo; k < hi; ++k) {
+      const int32_t* box = bins.boxes.data() + 4 * (int64_t)order[k];
+      const int tx0 = box[0] / kTile, tx1 = box[1] / kTile;
+      const int ty0 = box[2] / kTile, ty1 = box[3] / kTile;
+      for (int ty = ty0; ty <= ty1; ++ty)
+        for (int tx = tx0; tx <= tx1; ++tx) ++cnt[(int64_t)ty * bins.tiles_x + tx];
+      total += (int64_t)(tx1 - tx0 + 1) * (ty1 - ty0 + 1);
+    }
+    chunk_pairs[c] = total;
+  }
+  int64_t pairs = 0;
+  for (int c = 0; c < nc; ++c) pairs += chunk_pairs[c];
+  if (pairs > max_pairs)
+    throw std::length_error("rasterization: " + std::to_string(pairs) +
+                            " Gaussian-tile intersections exceed the limit of " +
+                            std::to_string(max_pairs) +
+                            " (huge Gaussians on a large image); lower the resolution or "
+                            "raise max_tile_pairs");
+  bins.offsets.assign(n_tiles + 1, 0);
+  // start[c][t]: where chunk c writes in tile t
+  std::vector<int64_t>& start = counts;
+  int64_t run = 0;
+  for (int64_t t = 0; t < n_tiles; ++t) {
+    bins.offsets[t] = run;
+    for (int c = 0; c < nc; ++c) {
+      const int64_t k = counts[(size_t)c * n_tiles + t];
+      start[(size_t)c * n_tiles + t] = run;
+      run += k;
+    }
+  }
+  bins.offsets[n_tiles] = run;
+  bins.ids.resize(pairs);
+#pragma omp parallel for num_threads(nt) schedule(dynamic, 1)
+  for (int c = 0; c < nc; ++c) {
+    const int64_t lo = m * c / nc, hi = m * (c + 1) / nc;
+    int64_t* pos = start.data() + (size_t)c * n_tiles;
+    for (int64_t k = lo; k < hi; ++k) {
+      const int32_t g = order[k];
+      const int32_t* box = bins.boxes.data() + 4 * (int64_t)g;
+      for (int ty = box[2] / kTile; ty <= box[3] / kTile; ++ty)
+        for (int tx = box[0] / kTile; tx <= box[1] / kTile; ++tx)
+          bins.ids[pos[(int64_t)ty * bins.tiles_x + tx]++] = g;
+    }
+  }
+}
+
+void rasterize_forward(const RasterScene& s, const BinView& bins, float* image, float* alpha,
+                       float* depth, float* final_T, int32_t* last, int threads) {
+  const int C = s.channels;
+  const int64_t n_tiles = (int64_t)bins.tiles_x * bins.tiles_y;
+#pragma omp parallel num_threads(std::max(1, threads))
+  {
+    alignas(32) float T[kTilePixels], D[kTilePixels];
+    alignas(32) int32_t done[kTilePixels], lastk[kTilePixels];
+    std::vector<f8> acc_buf((size_t)C * kTilePixels / kLanes);
+    float* acc = reinterpret_cast<float*>(acc_buf.data());  // (C, 256)
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t tile = 0; tile < n_tiles; ++tile) {
+      const int px0 = (int)(tile % bins.tiles_x) * kTile, py0 = (int)(tile / bins.tiles_x) * kTile;
+      int row_live[kTile];
+      int live = 0;
+      for (int r = 0; r < kTile; ++r) {
+        row_live[r] = 0;
+        for (int x = 0; x < kTile; ++x) {
+          const int p = r * kTile + x;
+          const bool inside = py0 + r < s.height && px0 + x < s.width;
+          T[p] = 1.f;
+          D[p] = 0.f;
+          lastk[p] = -1;
+          done[p] = inside ? 0 : -1;
+          row_live[r] += inside;
+        }
+        live += row_live[r];
+      }
+      std::fill(acc, acc + (size_t)C * kTilePixels, 0.f);
+      const int64_t k0 = bins.offsets[tile], k1 = bins.offsets[tile + 1];
+      for (int64_t k = k0; k < k1 && live > 0; ++k) {
+        const int32_t g = bins.ids[k];
+        const GaussianParams gp = load_gaussian(s, g);
+        const TileBox tb = tile_box(bins.boxes + 4 * (int64_t)g, px0, py0);
+        const float* col = s.colors + (int64_t)g * C;
+        const i8 kv = spliti8((int32_t)(k - k0));
+        for (int r = tb.row0; r <= tb.row1; ++r) {
+          if (row_live[r] == 0) continue;
+          for (int st = tb.strip0; st <= tb.strip1; ++st) {
+            const int p = r * kTile + st * kLanes;
+            f8 dx;
+            float dy;
+            const f8 power = strip_power(gp, px0 + st * kLanes, py0 + r, dx, dy);
+            f8 a = splat8(gp.o) * exp8(power);
+            a = a > splat8(kAlphaMax) ? splat8(kAlphaMax) : a;
+            i8 dn;
+            std::memcpy(&dn, done + p, 32);
+            i8 valid = (a >= splat8(kAlphaMin)) & ~dn;
+            if (!any8(valid)) continue;
+            f8 t;
+            std::memcpy(&t, T + p, 32);
+            const f8 nt = t * (splat8(1.f) - a);
+            const i8 stop = valid & (nt < splat8(kTransMin));
+            valid &= ~stop;
+            const f8 w = select8(valid, a * t, splat8(0.f));
+            for (int c = 0; c < C; ++c) {
+              f8* ac = reinterpret_cast<f8*>(acc + (size_t)c * kTilePixels + p);
+              *ac += w * splat8(col[c]);
+            }
+            f8* dp = reinterpret_cast<f8*>(D + p);
+            *dp += w * splat8(gp.z);
+            const f8 t2 = select8(valid, nt, t);
+            std::memcpy(T + p, &t2, 32);
+            i8 lk;
+            std::memcpy(&lk, lastk + p, 32);
+            lk = valid ? kv : lk;
+            std::memcpy(lastk + p, &lk, 32);
+            if (any8(stop)) {
+              dn |= stop;
+              std::memcpy(done + p, &dn, 32);
+              const int stopped = count8(stop);
+              row_live[r] -= stopped;
+              live -= stopped;
+            }
+          }
+        }
+      }
+      for (int r = 0; r < kTile && py0 + r < s.height; ++r) {
+        for (int x = 0; x < kTile && px0 + x < s.width; ++x) {
+          const int p = r * kTile + x;
+          const int64_t pix = (int64_t)(py0 + r) * s.width + px0 + x;
+          for (int c = 0; c < C; ++c) image[pix * C + c] = acc[(size_t)c * kTilePixels + p];
+          alpha[pix] = 1.f - T[p];
+          depth[pix] = D[p];
+          final_T[pix] = T[p];
+          last[pix] = lastk[p];
+        }
+      }
+    }
+  }
+}
+
+void rasterize_backward(const RasterScene& s, const BinView& bins, const float* final_T,
+                        const int32_t* last, const float* v_image, const float* v_alpha,
+                        const float* v_depth, float* v_means2d, float* v_conics, float* v_colors,
+                        float* v_opacities, float* v_depths, int threads) {
+  const int C = s.channels;
+  const int stride = 7 + C;  // per-Gaussian gradient record: mx my a b c o z colour...
+  const int64_t n = s.n;
+  const int64_t n_tiles = (int64_t)bins.tiles_x * bins.tiles_y;
+  const int nt = std::max(1, threads);
+  // Per-thread gradient buffers, summed at the end: no atomics. Tiles are handed out
+  // dynamically (robust to a core taken by another process), so the summation order, and the
+  // last float bits of a gradient, may differ between runs.
+  std::unique_ptr<float[]> grads(new float[(size_t)nt * n * stride]);
+#pragma omp parallel num_threads(nt)
+  {
+    float* gbuf = grads.get() + (size_t)omp_get_thread_num() * n * stride;
+    std::fill(gbuf, gbuf + (size_t)n * stride, 0.f);
+    alignas(32) float T[kTilePixels], SD[kTilePixels], gD[kTilePixels], gAT[kTilePixels];
+    alignas(32) int32_t lastk[kTilePixels];
+    std::vector<f8> buf((size_t)2 * C * kTilePixels / kLanes + C);
+    float* S = reinterpret_cast<float*>(buf.data());  // (C,256) colour composited behind
+    float* gC = S + (size_t)C * kTilePixels;          // (C,256) dL/dimage
+    f8* gcol = buf.data() + (size_t)2 * C * kTilePixels / kLanes;  // (C) lane accumulators
+#pragma omp barrier
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t tile = 0; tile < n_tiles; ++tile) {
+      const int px0 = (int)(tile % bins.tiles_x) * kTile, py0 = (int)(tile / bins.tiles_x) * kTile;
+      int kmax = -1;
+      for (int r = 0; r < kTile; ++r) {
+        for (int x = 0; x < kTile; ++x) {
+          const int p = r * kTile + x;
+          const bool inside = py0 + r < s.height && px0 + x < s.width;
+          const int64_t pix = (int64_t)(py0 + r) * s.width + px0 + x;
+          T[p] = inside ? final_T[pix] : 1.f;
+          SD[p] = 0.f;
+          gD[p] = inside ? v_depth[pix] : 0.f;
+          gAT[p] = inside ? v_alpha[pix] * final_T[pix] : 0.f;
+          lastk[p] = inside ? last[pix] : -1;
+          kmax = std::max(kmax, lastk[p]);
+          for (int c = 0; c < C; ++c) {
+            S[(size_t)c * kTilePixels + p] = 0.f;
+            gC[(size_t)c * kTilePixels + p] = inside ? v_image[pix * C + c] : 0.f;
+          }
+        }
+      }
+      const int64_t k0 = bins.offsets[tile];
+      for (int64_t k = k0 + kmax; k >= k0; --k) {
+        const int32_t g = bins.ids[k];
+        const GaussianParams gp = load_gaussian(s, g);
+        const TileBox tb = tile_box(bins.boxes + 4 * (int64_t)g, px0, py0);
+        const float* col = s.colors + (int64_t)g * C;
+        const i8 kv = spliti8((int32_t)(k - k0));
+        f8 gmx = splat8(0.f), gmy = gmx, ga = gmx, gb = gmx, gc = gmx, go = gmx, gz = gmx;
+        for (int c = 0; c < C; ++c) gcol[c] = splat8(0.f);
+        bool touched = false;
+        for (int r = tb.row0; r <= tb.row1; ++r) {
+          for (int st = tb.strip0; st <= tb.strip1; ++st) {
+            const int p = r * kTile + st * kLanes;
+            i8 lk;
+            std::memcpy(&lk, lastk + p, 32);
+            const i8 in_range = kv <= lk;
+            if (!any8(in_range)) continue;
+            f8 dx;
+            float dy;
+            const f8 power = strip_power(gp, px0 + st * kLanes, py0 + r, dx, dy);
+            const f8 G = exp8(power);
+            const f8 ao = splat8(gp.o) * G;
+            const f8 a = ao > splat8(kAlphaMax) ? splat8(kAlphaMax) : ao;
+            const i8 valid = in_range & (a >= splat8(kAlphaMin));
+            if (!any8(valid)) continue;
+            touched = true;
+            f8 t;
+            std::memcpy(&t, T + p, 32);
+            const f8 inv = splat8(1.f) / (splat8(1.f) - a);
+            const f8 tb4 = t * inv;  // transmittance in front of this Gaussian
+            const f8 w = a * tb4;
+            f8* sdp = reinterpret_cast<f8*>(SD + p);
+            const f8 gd = *reinterpret_cast<const f8*>(gD + p);
+            f8 v_a = *reinterpret_cast<const f8*>(gAT + p) * inv +
+                     gd * (splat8(gp.z) * tb4 - *sdp * inv);
+            for (int c = 0; c < C; ++c) {
+              f8* sp = reinterpret_cast<f8*>(S + (size_t)c * kTilePixels + p);
+              const f8 gcv = *reinterpret_cast<const f8*>(gC + (size_t)c * kTilePixels + p);
+              v_a += gcv * (splat8(col[c]) * tb4 - *sp * inv);
+              gcol[c] += select8(valid, w * gcv, splat8(0.f));
+              *sp = select8(valid, *sp + splat8(col[c]) * w, *sp);
+            }
+            gz += select8(valid, w * gd, splat8(0.f));
+            *sdp = select8(valid, *sdp + splat8(gp.z) * w, *sdp);
+            const f8 t2 = select8(valid, tb4, t);
+            std::memcpy(T + p, &t2, 32);
+            // alpha = min(0.99, o G): no gradient through an active clamp
+            const f8 v_ao = select8(valid & (ao <= splat8(kAlphaMax)), v_a, splat8(0.f));
+            go += v_ao * G;
+            const f8 v_pow = v_ao * splat8(gp.o) * G;
+            const f8 dyv = splat8(dy);
+            ga += v_pow * splat8(-0.5f) * dx * dx;
+            gb -= v_pow * dx * dyv;
+            gc += v_pow * splat8(-0.5f * dy * dy);
+            gmx += v_pow * (splat8(gp.a) * dx + splat8(gp.b) * dyv);
+            gmy += v_pow * (splat8(gp.b) * dx + splat8(gp.c) * dyv);
+          }
+        }
+        if (!touched) continue;
+        float* gr = gbuf + (int64_t)g * stride;
+        gr[0] += hsum8(gmx);
+        gr[1] += hsum8(gmy);
+        gr[2] += hsum8(ga);
+        gr[3] += hsum8(gb);
+        gr[4] += hsum8(gc);
+        gr[5] += hsum8(go);
+        gr[6] += hsum8(gz);
+        for (int c = 0; c < C; ++c) gr[7 + c] += hsum8(gcol[c]);
+      }
+    }
+#pragma omp for schedule(dynamic, 2048)
+    for (int64_t i = 0; i < n; ++i) {
+      float* outs[7] = {v_means2d + 2 * i, v_means2d + 2 * i + 1, v_conics + 3 * i,
+                        v_conics + 3 * i + 1, v_conics + 3 * i + 2, v_opacities + i,
+                        v_depths + i};
+      for (int j = 0; j < stride; ++j) {
+        float sum = 0.f;
+        for (int t = 0; t < nt; ++t) sum += grads[((size_t)t * n + i) * stride + j];
+        *(j < 7 ? outs[j] : v_colors + i * C + (j - 7)) = sum;
+      }
+    }
+  }
+}
+
+}  // namespace splat

@@ -1,0 +1,145 @@
+"""`rasterization()`: render N world-space 3D Gaussians through a pinhole camera, differentiably.
+
+Conventions (identical in the dense reference of the tests):
+- camera: `viewmat` is world-to-camera in OpenCV axes (x right, y down, z forward);
+  a pixel (x, y) has its centre at (x + 0.5, y + 0.5) in the units of fx, fy, cx, cy (as gsplat
+  and nerfstudio; cx = width/2 is a centred principal point).
+- math as 3DGS: EWA projection (the Jacobian's tx/tz, ty/tz clamped to the image plus 0.3
+  tan(fov/2) per side), +0.3 px^2 on the 2D covariance diagonal, alpha = min(0.99, o exp(-q/2)),
+  contributions with alpha < 1/255 skipped, front to back by camera z of the mean, and a pixel
+  stops before the Gaussian that would take its transmittance below 1e-4.
+- footprint: opacity-aware, i.e. exactly where alpha can reach 1/255 (q <= 2 ln(255 o)), so the
+  result never depends on tile binning; Gaussians with o < 1/255 or camera z < near_plane are
+  culled.
+- depth: expected camera z of the composited surface, sum(w_i z_i) / max(alpha, 1e-10); where
+  alpha is 0 it is 0.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from recon.splat._functions import EvalSH, Project, Rasterize
+
+DEPTH_EPS = 1e-10
+MAX_TILE_PAIRS = 1 << 28  # 1 GiB of tile lists; beyond this a clear MemoryError
+
+
+@dataclass
+class RenderOutput:
+    image: torch.Tensor    # (H, W, C) composited + (1 - alpha) * background
+    alpha: torch.Tensor    # (H, W) accumulated opacity, 1 - final transmittance
+    depth: torch.Tensor    # (H, W) expected camera z, sum(w z) / max(alpha, 1e-10)
+    radii: torch.Tensor    # (N,) int32 pixel radius of the opacity-aware footprint; 0 = culled
+    visible: torch.Tensor  # (N,) bool, radii > 0
+    means2d: torch.Tensor  # (N, 2) projected pixel-space means; .grad holds dL/dmeans2d after backward
+
+
+def _shape(x: torch.Tensor) -> str:
+    return "(" + ",".join(str(d) for d in x.shape) + ")"
+
+
+def _check(name: str, x, shape: tuple, dtypes=(torch.float32,)) -> None:
+    """Raise ValueError naming `name` unless x is a finite CPU tensor of `shape` (-1 = any)."""
+    if not isinstance(x, torch.Tensor):
+        raise ValueError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
+    if x.device.type != "cpu":
+        raise ValueError(f"{name} is on {x.device}; recon.splat renders on the CPU only (move it with .cpu())")
+    if x.dtype not in dtypes:
+        raise ValueError(f"{name} must have dtype {' or '.join(str(d) for d in dtypes)}, got {x.dtype} with shape {_shape(x)}")
+    want = "(" + ",".join("N" if d == -1 else str(d) for d in shape) + ")"
+    if x.dim() != len(shape) or any(d != -1 and s != d for s, d in zip(x.shape, shape)):
+        raise ValueError(f"{name} must have shape {want}, got {_shape(x)}")
+    if x.numel() and not bool(torch.isfinite(x).all()):
+        raise ValueError(f"{name} with shape {_shape(x)} contains non-finite values")
+
+
+def _check_camera(fx, fy, cx, cy, width, height, near_plane) -> None:
+    for name, v in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy), ("near_plane", near_plane)):
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not torch.isfinite(torch.tensor(float(v))):
+            raise ValueError(f"{name} must be a finite number, got {v!r}")
+    if fx <= 0 or fy <= 0:
+        raise ValueError(f"fx and fy must be > 0, got fx={fx}, fy={fy}")
+    if near_plane <= 0:
+        raise ValueError(f"near_plane must be > 0, got {near_plane}")
+    for name, v in (("width", width), ("height", height)):
+        if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+            raise ValueError(f"{name} must be a positive int, got {v!r}")
+
+
+def _colors(features, sh_degree, means, viewmat, n: int, threads: int) -> torch.Tensor:
+    """features (N,C) as is, or SH (N,K,C) evaluated for the direction camera -> Gaussian."""
+    if sh_degree is None:
+        _check("features", features, (n, -1))
+        if features.shape[1] < 1:
+            raise ValueError(f"features must have at least 1 channel, got {_shape(features)}")
+        return features
+    if not isinstance(sh_degree, int) or isinstance(sh_degree, bool) or not 0 <= sh_degree <= 3:
+        raise ValueError(f"sh_degree must be None or an int in 0..3, got {sh_degree!r}")
+    need = (sh_degree + 1) ** 2
+    if isinstance(features, torch.Tensor) and features.dim() == 3:
+        _check("features", features, (n, -1, -1))
+    if not isinstance(features, torch.Tensor) or features.dim() != 3 or features.shape[1] < need or features.shape[2] < 1:
+        raise ValueError(
+            f"features as SH of degree {sh_degree} must have shape (N,K>={need},C>=1), got "
+            + (_shape(features) if isinstance(features, torch.Tensor) else type(features).__name__)
+        )
+    rot, trans = viewmat[:3, :3], viewmat[:3, 3]
+    campos = -rot.T @ trans
+    return EvalSH.apply(features.contiguous(), means - campos, sh_degree, threads)
+
+
+def rasterization(
+    means: torch.Tensor,
+    quats: torch.Tensor,
+    log_scales: torch.Tensor,
+    opacities: torch.Tensor,
+    features: torch.Tensor,
+    viewmat: torch.Tensor,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    width: int,
+    height: int,
+    background: torch.Tensor | None = None,
+    sh_degree: int | None = None,
+    near_plane: float = 0.01,
+    threads: int | None = None,
+    max_tile_pairs: int = MAX_TILE_PAIRS,
+) -> RenderOutput:
+    """Render Gaussians to (H,W,C); differentiable in every tensor input (and viewmat).
+
+    means (N,3) world; quats (N,4) wxyz, any non-zero norm (normalised inside); log_scales (N,3);
+    opacities (N,) in [0,1]; features (N,C) used as colours, or SH coefficients (N,K,C) with
+    K >= (sh_degree+1)^2 when sh_degree is given (colour = max(SH(dir) + 0.5, 0), 3DGS).
+    viewmat (4,4) world-to-camera, OpenCV axes. background (C,) or None (zeros).
+    threads defaults to torch.get_num_threads(). All tensors float32 on the CPU.
+    """
+    _check("means", means, (-1, 3))
+    n = means.shape[0]
+    _check("quats", quats, (n, 4))
+    _check("log_scales", log_scales, (n, 3))
+    _check("opacities", opacities, (n,))
+    _check("viewmat", viewmat, (4, 4), (torch.float32, torch.float64))
+    _check_camera(fx, fy, cx, cy, width, height, near_plane)
+    threads = torch.get_num_threads() if threads is None else int(threads)
+    if threads < 1:
+        raise ValueError(f"threads must be >= 1, got {threads}")
+    viewmat = viewmat.float()
+    colors = _colors(features, sh_degree, means, viewmat, n, threads)
+    channels = colors.shape[1]
+    if background is not None:
+        _check("background", background, (channels,), (torch.float32, torch.float64))
+    intr = (float(fx), float(fy), float(cx), float(cy), width, height, float(near_plane))
+    means2d, conics, depths, radii = Project.apply(means, quats, log_scales, opacities, viewmat, intr, threads)
+    if means2d.requires_grad:
+        means2d.retain_grad()
+    image, alpha, depth_sum = Rasterize.apply(
+        means2d, conics, colors, opacities, depths, radii, width, height, max_tile_pairs, threads
+    )
+    if background is not None:
+        image = image + (1.0 - alpha)[..., None] * background.float()
+    depth = depth_sum / alpha.clamp_min(DEPTH_EPS)
+    return RenderOutput(image=image, alpha=alpha, depth=depth, radii=radii, visible=radii > 0, means2d=means2d)

@@ -1,0 +1,159 @@
+"""Edge cases of the rasterizer: culling, extreme scales, odd cameras and image sizes, bad input."""
+import pytest
+import torch
+
+from recon.splat import rasterization
+from tests.splat_compare import forward_errors, gradient_errors
+from tests.splat_scenes import Gaussians, default_camera, random_gaussians
+
+TOL = 1e-4
+
+
+def _near_plane_scene() -> Gaussians:
+    """Gaussians behind the camera, straddling the near plane (z = 0.5) and just in front."""
+    g = random_gaussians(60, 3, seed=50, scale_range=(0.05, 0.6))
+    cam_z = torch.tensor([0.4, -0.3, -4.0])  # default_camera's position; it looks along ~+z
+    offsets = torch.linspace(-1.0, 1.5, 60)
+    g.means = cam_z + torch.stack([0.3 * torch.randn(60), 0.3 * torch.randn(60), offsets], 1)
+    return g
+
+
+def test_gaussians_behind_or_crossing_near_plane():
+    g = _near_plane_scene()
+    errors = forward_errors(g, default_camera(), near_plane=0.5)
+    assert max(errors.values()) <= TOL, errors
+    grad_errors = gradient_errors(g, default_camera(), near_plane=0.5)
+    assert max(grad_errors.values()) <= 1e-3, grad_errors
+    out = rasterization(*g.tensors(), *default_camera().args(), near_plane=0.5)
+    behind = g.means[:, 2] < -4.0 + 0.45  # camera z well below the near plane
+    assert not out.visible[behind].any()
+
+
+def test_fully_off_screen_renders_background_with_zero_gradients():
+    g = random_gaussians(40, 3, seed=51).requires_grad_()
+    with torch.no_grad():
+        g.means += torch.tensor([30.0, 0.0, 0.0])  # far to the side of the view
+    background = torch.tensor([0.1, 0.2, 0.3])
+    out = rasterization(*g.tensors(), *default_camera().args(), background=background)
+    assert not out.visible.any()
+    assert torch.equal(out.alpha, torch.zeros_like(out.alpha))
+    assert torch.allclose(out.image, background.expand_as(out.image))
+    out.image.sum().backward()
+    for t in g.tensors():
+        assert torch.equal(t.grad, torch.zeros_like(t))
+
+
+@pytest.mark.parametrize("kind", ["huge", "flat", "needle", "point"])
+def test_extreme_scales_match_reference(kind):
+    g = random_gaussians(80, 3, seed=52)
+    if kind == "huge":
+        g.log_scales[:10] = 4.0  # ~55 world units: covers the whole image
+        g.opacities[:10] = 0.05
+    elif kind == "flat":
+        g.log_scales[:, 2] = -18.0
+    elif kind == "needle":
+        g.log_scales[:, 1:] = -18.0
+    else:
+        g.log_scales[:] = -18.0  # smaller than the 0.3 px blur: a pixel-sized dot
+    errors = forward_errors(g, default_camera())
+    assert max(errors.values()) <= TOL, errors
+    grad_errors = gradient_errors(g, default_camera())
+    assert max(grad_errors.values()) <= 1e-3, grad_errors
+
+
+def test_zero_gaussians():
+    g = random_gaussians(0, 3, seed=0).requires_grad_()
+    background = torch.tensor([0.3, 0.6, 0.9], requires_grad=True)
+    out = rasterization(*g.tensors(), *default_camera().args(), background=background)
+    assert out.image.shape == (48, 64, 3) and out.radii.shape == (0,) and out.means2d.shape == (0, 2)
+    assert torch.allclose(out.image, background.detach().expand(48, 64, 3))
+    out.image.sum().backward()
+    assert g.means.grad.shape == (0, 3)
+    assert torch.allclose(background.grad, torch.full((3,), 48.0 * 64.0))
+
+
+@pytest.mark.parametrize("channels", [1, 2, 5])
+def test_any_channel_count(channels):
+    g = random_gaussians(100, channels, seed=53)
+    errors = forward_errors(g, default_camera())
+    assert max(errors.values()) <= TOL, errors
+    grad_errors = gradient_errors(g, default_camera())
+    assert max(grad_errors.values()) <= 1e-3, grad_errors
+
+
+@pytest.mark.parametrize("width,height", [(1, 1), (17, 13), (1, 30), (33, 1), (50, 47)])
+def test_odd_image_sizes(width, height):
+    g = random_gaussians(120, 3, seed=54, scale_range=(0.05, 0.8))
+    cam = default_camera(width=width, height=height, fx=0.9 * max(width, height), fy=max(width, height))
+    errors = forward_errors(g, cam)
+    assert max(errors.values()) <= TOL, errors
+    grad_errors = gradient_errors(g, cam)
+    assert max(grad_errors.values()) <= 1e-3, grad_errors
+
+
+def test_off_centre_principal_point_and_unequal_focal_lengths():
+    cam = default_camera(fx=40.0, fy=75.0, cx=9.0, cy=41.0)
+    g = random_gaussians(200, 3, seed=55)
+    errors = forward_errors(g, cam)
+    assert max(errors.values()) <= TOL, errors
+    grad_errors = gradient_errors(g, cam)
+    assert max(grad_errors.values()) <= 1e-3, grad_errors
+
+
+def test_zero_quaternion_does_not_crash():
+    g = random_gaussians(10, 3, seed=56).requires_grad_()
+    with torch.no_grad():
+        g.quats[0] = 0.0
+    out = rasterization(*g.tensors(), *default_camera().args())
+    out.image.sum().backward()
+    assert torch.isfinite(g.quats.grad).all() and torch.isfinite(out.image).all()
+
+
+def test_tile_list_memory_is_bounded():
+    g = random_gaussians(50, 3, seed=57)
+    g.log_scales[:] = 4.0
+    with pytest.raises(MemoryError, match="Gaussian-tile intersections"):
+        rasterization(*g.tensors(), *default_camera().args(), max_tile_pairs=10)
+
+
+def _valid():
+    g = random_gaussians(5, 3, seed=58)
+    return dict(means=g.means, quats=g.quats, log_scales=g.log_scales, opacities=g.opacities,
+                features=g.features)
+
+
+@pytest.mark.parametrize("name,value,match", [
+    ("means", torch.zeros(5, 2), r"means must have shape \(N,3\), got \(5,2\)"),
+    ("quats", torch.zeros(4, 4), r"quats must have shape \(5,4\), got \(4,4\)"),
+    ("log_scales", torch.zeros(5, 3, dtype=torch.float64), r"log_scales must have dtype torch.float32"),
+    ("opacities", torch.tensor([0.5, float("nan"), 0.5, 0.5, 0.5]), r"opacities with shape \(5\) contains non-finite"),
+    ("features", torch.zeros(5), r"features must have shape \(5,N\), got \(5\)"),
+    ("features", torch.zeros(5, 0), r"features must have at least 1 channel"),
+    ("means", torch.zeros(5, 3, device="meta"), r"means is on meta"),
+    ("means", [[0.0, 0.0, 0.0]], r"means must be a torch.Tensor"),
+])
+def test_bad_tensors_raise_value_error_naming_them(name, value, match):
+    kwargs = _valid()
+    kwargs[name] = value
+    with pytest.raises(ValueError, match=match):
+        rasterization(**kwargs, viewmat=torch.eye(4), fx=50.0, fy=50.0, cx=32.0, cy=24.0, width=64, height=48)
+
+
+@pytest.mark.parametrize("override,match", [
+    (dict(viewmat=torch.eye(3)), r"viewmat must have shape \(4,4\), got \(3,3\)"),
+    (dict(viewmat=torch.full((4, 4), float("inf"))), r"viewmat .* non-finite"),
+    (dict(width=0), r"width must be a positive int"),
+    (dict(height=2.5), r"height must be a positive int"),
+    (dict(fx=-1.0), r"fx and fy must be > 0"),
+    (dict(cx=float("nan")), r"cx must be a finite number"),
+    (dict(near_plane=0.0), r"near_plane must be > 0"),
+    (dict(background=torch.zeros(4)), r"background must have shape \(3\), got \(4\)"),
+    (dict(sh_degree=4), r"sh_degree must be None or an int in 0..3"),
+    (dict(sh_degree=1), r"features as SH of degree 1 must have shape \(N,K>=4,C>=1\), got \(5,3\)"),
+    (dict(threads=0), r"threads must be >= 1"),
+])
+def test_bad_camera_and_options_raise_value_error(override, match):
+    kwargs = dict(_valid(), viewmat=torch.eye(4), fx=50.0, fy=50.0, cx=32.0, cy=24.0, width=64, height=48)
+    kwargs.update(override)
+    with pytest.raises(ValueError, match=match):
+        rasterization(**kwargs)
