@@ -49,6 +49,7 @@ class CaptureConfig:
     sim_phone_offset_s: float = 0.137       # simulated phone clock error ...
     sim_phone_drift_ppm: float = 50.0       # ... and drift, for sync to recover
     sim_lamp: bool = True                   # simulated rig: a sync-box lamp in view of both cameras
+    sim_scene: str = "world"                # "world" (rig.sim) or "synthetic"
     seed: int = 0
     sync_every_s: float = 5.0
     progress: bool = True
@@ -101,10 +102,15 @@ class Capture:
         elif self.simulated:
             from rig.simulated import Lamp, SimClock, SimThermalCamera, default_scene
             self.lamp = Lamp() if cfg.sim_lamp else None
-            self.scene = default_scene(cfg.seed, lamp=self.lamp)
+            self.scene = default_scene(cfg.seed, lamp=self.lamp, world=cfg.sim_scene == "world")
+            if hasattr(self.scene, "prerender"):
+                if cfg.progress:
+                    print(f"rendering the simulated world ({self.scene.n_keys} keyframes per camera)...",
+                          file=sys.stderr, flush=True)
+                self.scene.prerender({"thermal": (640, 480), "rgb": (640, 480)})
             now = time.monotonic()
             self.sim_camera = SimThermalCamera(self.scene, ir_format=cfg.ir_format, scene_t0=now,
-                                               clock=SimClock(5000.0, 20.0, now))
+                                               clock=SimClock(5000.0, 20.0, now), seed=cfg.seed)
             meta["thermal"] = {"source": "simulated", "tick_hz": self.sim_camera.tick_hz,
                                "device": {"model": "simulated FLIR A700"}}
         if cfg.phone_drop:
@@ -283,6 +289,8 @@ class Capture:
             except KeyboardInterrupt:
                 print("\ninterrupted: finishing the session", file=sys.stderr)
         finally:
+            if self.sim_phone is not None:
+                self.sim_phone.stopped_at = time.monotonic()
             self.stop.set()
             self._shutdown(writer)
         reader = open_session(self.out)
@@ -357,6 +365,8 @@ def register(sub) -> None:
     p.add_argument("--packet-size", type=int, default=1500, help="GVSP packet size (SCPS), bytes")
     p.add_argument("--settle", type=float, default=1.0, help="seconds a dropped file must stay unchanged")
     p.add_argument("--seed", type=int, default=0, help="simulated rig: scene seed")
+    p.add_argument("--sim-scene", choices=["world", "synthetic"], default="world",
+                   help="simulated rig: the project's simulated world, or cheap synthetic warm blobs")
     p.add_argument("--no-sim-lamp", action="store_true",
                    help="simulated rig without its sync-box lamp: sync falls back to cross-correlation")
     p.add_argument("--quiet", action="store_true", help="no progress line")
@@ -370,7 +380,7 @@ def main(args) -> int:
     cfg = CaptureConfig(duration_s=args.duration, out=args.out, camera=args.camera,
                         phone_drop=args.phone_drop, syncbox=args.syncbox, ir_format=args.ir_format,
                         packet_size=args.packet_size, settle_s=args.settle, seed=args.seed,
-                        sim_lamp=not args.no_sim_lamp,
+                        sim_lamp=not args.no_sim_lamp, sim_scene=args.sim_scene,
                         progress=not args.quiet)
     try:
         cap = Capture(cfg)

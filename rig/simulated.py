@@ -8,10 +8,10 @@ frame intervals, a wall clock off by `clock_offset_s` with `drift_ppm`, whole-se
 creationdate) and drops each finished file into a folder, so the real drop-folder and sync
 code recover the offset. An optional lamp (the sync box's) is drawn in a corner of both images.
 
-Scenes: `SyntheticScene` (seeded 2-D warm objects) is the default; `WorldScene` renders the
-project's simulated world (`rig.sim`, when present) at reduced size for a few keyframes per
-second and interpolates between them, because full-size rendering at 30 Hz live is too slow
-on the appliance's CPU.
+Scenes: `WorldScene` (the default) renders the project's simulated world (`rig.sim`) at 1/5
+size, 5 keyframes per second of its script, once, and blends and upscales them, because
+full-size rendering at 30 Hz live is far too slow on the appliance's CPU. `SyntheticScene`
+(seeded 2-D warm objects, cheap) serves tests and `--sim-scene synthetic`.
 """
 from __future__ import annotations
 
@@ -128,36 +128,43 @@ class SyntheticScene:
 
 
 class WorldScene:
-    """The project's simulated world (`rig.sim.make_world`) seen from the rig, rendered at
-    `render_scale` of the output size at `key_hz` keyframes per second and linearly blended."""
+    """The project's simulated world (`rig.sim.make_world`) seen from rig 0. Keyframes are
+    rendered at `render_scale` of the asked size, `key_hz` per second of the world's script
+    (which ping-pongs over `duration_s`, so they are reused), blended linearly and upscaled."""
 
-    def __init__(self, world, key_hz: float = 10.0, render_scale: float = 0.25,
-                 thermal_fov_deg: float = 45.0, rgb_fov_deg: float = 60.0, lamp: Lamp | None = None):
+    def __init__(self, world, key_hz: float = 5.0, render_scale: float = 0.2, lamp: Lamp | None = None):
         self.world, self.key_hz, self.scale, self.lamp = world, key_hz, render_scale, lamp
-        self.fov = {"thermal": thermal_fov_deg, "rgb": rgb_fov_deg}
+        self.n_keys = int(round(world.duration_s * key_hz)) + 1
         self._cache: dict[tuple, np.ndarray] = {}
 
     def _render(self, kind: str, k: int, w: int, h: int) -> np.ndarray:
         key = (kind, k, w, h)
         if key not in self._cache:
-            t = min(k / self.key_hz, self.world.duration_s)
-            rw, rh = max(8, int(w * self.scale)), max(6, int(h * self.scale))
-            f = 0.5 * rw / math.tan(math.radians(self.fov[kind]) / 2)
-            c2w_rgb, c2w_th = self.world.rig_pose(self.world.rig_config, t)
+            t = k / self.key_hz
+            rw, rh = max(8, round(w * self.scale)), max(6, round(h * self.scale))
+            cams = self.world.rig_config
+            c2w_rgb, c2w_th = self.world.rig_pose(0, t)
             if kind == "thermal":
-                img = self.world.render_temperature(c2w_th, f, f, rw / 2, rh / 2, rw, rh, t)
+                i = cams.thermal.scaled(rw, rh)
+                img = self.world.render_temperature(c2w_th, i.fx, i.fy, i.cx, i.cy, rw, rh, t)
             else:
-                img = self.world.render_rgb(c2w_rgb, f, f, rw / 2, rh / 2, rw, rh, t)
-            self._cache[key] = cv2.resize(np.asarray(img, np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
-            if len(self._cache) > 4 * self.key_hz * 60:
-                self._cache.pop(next(iter(self._cache)))
+                i = cams.rgb.scaled(rw, rh)
+                img = self.world.render_rgb(c2w_rgb, i.fx, i.fy, i.cx, i.cy, rw, rh, t)
+            self._cache[key] = np.asarray(img, np.float32)
         return self._cache[key]
 
+    def prerender(self, sizes: dict[str, tuple[int, int]]) -> None:
+        """Render every keyframe now (for live capture). sizes: kind -> (w, h)."""
+        for kind, (w, h) in sizes.items():
+            for k in range(self.n_keys):
+                self._render(kind, k, w, h)
+
     def _blend(self, kind: str, t: float, w: int, h: int) -> np.ndarray:
-        t = t % max(self.world.duration_s, 1e-3)
-        k = int(t * self.key_hz)
-        a = t * self.key_hz - k
-        return (1 - a) * self._render(kind, k, w, h) + a * self._render(kind, k + 1, w, h)
+        s = self.world.scene_time(t) * self.key_hz
+        k = min(int(s), self.n_keys - 2)
+        a = s - k
+        small = (1 - a) * self._render(kind, k, w, h) + a * self._render(kind, k + 1, w, h)
+        return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
 
     def temperature(self, t: float, w: int, h: int) -> np.ndarray:
         k = self._blend("thermal", t, w, h)
@@ -187,13 +194,12 @@ class ScaledScene:
         return cv2.resize(img, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
-def default_scene(seed: int = 0, lamp: Lamp | None = None):
-    """The simulated world if `rig.sim` is available (WorldScene renders small keyframes
-    itself), else the synthetic scene rendered at quarter size."""
-    try:
-        from rig.sim import make_world
-    except ImportError:
+def default_scene(seed: int = 0, lamp: Lamp | None = None, world: bool = True):
+    """The project's simulated world (`rig.sim`), or with world=False the synthetic scene
+    rendered at quarter size."""
+    if not world:
         return ScaledScene(SyntheticScene(seed, lamp=lamp))
+    from rig.sim import make_world
     return WorldScene(make_world("default", seed=seed), lamp=lamp)
 
 
@@ -222,6 +228,11 @@ class SimThermalCamera:
     nuc_duration_s: float = 0.4
     scene_t0: float = 0.0           # host s at scene time 0
     block_id: int = 1
+    netd_k: float = 0.04            # temporal noise of the microbolometer (1 sigma)
+    seed: int = 0
+
+    def __post_init__(self):
+        self._rng = np.random.default_rng(self.seed)
 
     def in_nuc(self, host_s: float) -> bool:
         if not self.nuc_period_s:
@@ -231,6 +242,8 @@ class SimThermalCamera:
 
     def frame_at(self, host_s: float) -> Frame:
         kelvin = self.scene.temperature(host_s - self.scene_t0, self.width, self.height)
+        if self.netd_k:
+            kelvin = kelvin + self._rng.normal(0.0, self.netd_k, kelvin.shape).astype(np.float32)
         counts = flir.kelvin_to_counts(kelvin, self.ir_format)
         f = Frame(block_id=self.block_id, timestamp=int(self.clock(host_s) * self.tick_hz),
                   host_ns=int(host_s * 1e9), host_done_ns=int(host_s * 1e9),
@@ -294,8 +307,8 @@ class SimPhone:
     """An iPhone recording segments into a drop folder (its own wall clock, VFR timing)."""
     scene: object
     drop_dir: Path
-    width: int = 640
-    height: int = 360
+    width: int = 640                # the rig's phone video, cropped and downsampled to 4:3
+    height: int = 480
     fps: float = 30.0
     segment_s: float = 10.0
     clock_offset_s: float = 0.137   # phone wall clock minus host wall clock
@@ -308,6 +321,7 @@ class SimPhone:
     realtime_minus_monotonic: float = 0.0
     seed: int = 0
     truth: list[dict] = field(default_factory=list)   # per file: true host start, nominal start
+    stopped_at: float | None = None  # host s the recording was stopped (set before `stop`)
 
     def phone_unix(self, host_s: float) -> float:
         """Phone wall clock at host monotonic time `host_s`."""
@@ -336,16 +350,21 @@ class SimPhone:
                            "clock_offset_s": self.clock_offset_s, "drift_ppm": self.drift_ppm})
         return final
 
-    def run(self, stop: threading.Event, first_index: int = 1) -> None:
-        """Real time: record segments back to back until `stop`; the segment in progress is
-        finished (shortened) and dropped when stopped."""
+    def run(self, stop: threading.Event, first_index: int = 1, gap_s: float = 0.3) -> None:
+        """Real time: record segments back to back (a `gap_s` pause between files) until
+        `stop`; frames are rendered when a segment ends, and the one in progress at `stop` is
+        cut there and dropped too."""
         rng = np.random.default_rng(self.seed)
         idx = first_index
-        while not stop.is_set():
-            start = time.monotonic()
+        start = time.monotonic()
+        while True:
             times = self.segment_times(start, self.segment_s, rng)
-            stop.wait(max(0.0, times[-1] - time.monotonic()))
-            times = times[times <= time.monotonic()]
+            stopped = stop.wait(max(0.0, times[-1] - time.monotonic()))
+            if stopped:
+                times = times[times <= (self.stopped_at or time.monotonic())]
             if len(times) >= 2:
                 self.write_segment(f"IMG_{idx:04d}.MOV", times)
                 idx += 1
+            if stopped:
+                return
+            start = times[-1] + gap_s

@@ -9,7 +9,7 @@ from rig.drivers.gige import ControlConfig, GigECamera, GigEDevice, GvcpError, S
 from rig.drivers.gige import gvcp
 from rig.drivers.gige.features import fetch_genicam_xml
 from rig.sync import fit_clock
-from tests.fakes.fake_gige import XML_PATH, FakeConfig, FakeGigECamera, synthetic_scene
+from tests.fakes.fake_gige import XML_PATH, FakeConfig, FakeGigECamera, synthetic_scene, world_scene
 
 W, H = 160, 120
 
@@ -113,6 +113,20 @@ def test_stream_frames_match_the_scene(make_fake):
         t = f.timestamp / 1e9 - fake.config.clock_offset_s
         assert np.abs(a700.kelvin(f) - scene(t)).max() <= 0.006      # 10 mK quantisation
     assert {f.meta["ir_format"] for f in frames} == {"TemperatureLinear10mK"}
+
+
+def test_streams_the_simulated_world(make_fake):
+    scene = world_scene(W, H)
+    fake = make_fake(source=scene)
+    with GigECamera.open(fake.url) as cam:
+        a700 = flir.FlirA700(cam)
+        a700.configure("TemperatureLinear10mK", W, H)
+        a700.start()
+        f = collect(a700, 3)[-1]
+    t = f.timestamp / 1e9 - fake.config.clock_offset_s
+    k = a700.kelvin(f)
+    assert 250 < k.min() and k.max() < 400 and k.std() > 1            # a scene, not a constant
+    assert np.abs(k - scene(t)).max() <= 0.005 + 1e-3
 
 
 def test_one_percent_loss_reorder_duplicates_recovered_by_resend(make_fake):

@@ -24,6 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_simulated_rig_capture_and_info(tmp_path, capsys):
+    """The simulated world (rig.sim) through the whole capture path."""
     cfg = CaptureConfig(duration_s=5.0, out=tmp_path / "s", sim_segment_s=2.5, sync_every_s=2.0, progress=False)
     Capture(cfg).run()
     assert rig_main(["info", str(tmp_path / "s"), "--json"]) == 0
@@ -37,7 +38,7 @@ def test_simulated_rig_capture_and_info(tmp_path, capsys):
     f = next(s.iter_thermal())
     assert f.counts.shape == (480, 640) and 280 < f.kelvin().mean() < 340
     img = next(s.iter_rgb()).image
-    assert img.shape == (360, 640, 3)
+    assert img.shape == (480, 640, 3)
     # the phone's clock error is recovered (simulation ground truth is in the summary)
     truth = {t["file"]: t for t in s.summary["sim_truth"]}
     for fs in s.sync["files"]:
@@ -74,7 +75,7 @@ def test_capture_from_gige_phone_folder_and_syncbox(tmp_path):
 def test_kill_9_during_capture_keeps_every_committed_frame(tmp_path):
     out = tmp_path / "s"
     proc = subprocess.Popen([sys.executable, "-m", "rig", "capture", "--duration", "60", "--out", str(out),
-                             "--quiet"], cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                             "--sim-scene", "synthetic", "--quiet"], cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     index = out / "thermal.jsonl"
     deadline = time.monotonic() + 60

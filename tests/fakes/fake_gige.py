@@ -66,6 +66,16 @@ def synthetic_scene(width: int = 640, height: int = 480) -> Callable[[float], np
     return source
 
 
+def world_scene(width: int = 640, height: int = 480, seed: int = 0) -> Callable[[float], np.ndarray]:
+    """Frame source from the project's simulated world (rig.sim), seen by rig 0's thermal camera
+    (keyframes rendered once at 1/5 size and blended: see rig.simulated.WorldScene)."""
+    from rig.sim import make_world
+    from rig.simulated import WorldScene
+    scene = WorldScene(make_world("default", seed=seed))
+    scene.prerender({"thermal": (width, height)})
+    return lambda t: scene.temperature(t, width, height)
+
+
 @dataclass
 class FakeConfig:
     width: int = 640
@@ -443,9 +453,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--loss", type=float, default=0.0, help="GVSP packet loss probability")
     p.add_argument("--reorder", type=float, default=0.0)
     p.add_argument("--duplicate", type=float, default=0.0)
+    p.add_argument("--scene", choices=["synthetic", "world"], default="synthetic",
+                   help="frames of a synthetic warm blob, or of the simulated world (rig.sim)")
     p.add_argument("--prerender", type=int, default=30, help="frames rendered once and cycled")
     args = p.parse_args(argv)
-    scene = synthetic_scene(args.width, args.height)
+    scene = (world_scene if args.scene == "world" else synthetic_scene)(args.width, args.height)
     frames = [scene(i / args.fps) for i in range(args.prerender)]
     cfg = FakeConfig(width=args.width, height=args.height, fps=args.fps, loss=args.loss,
                      reorder=args.reorder, duplicate=args.duplicate,
