@@ -62,6 +62,7 @@ class CaptureStats:
     rgb_files: int = 0
     markers: int = 0
     errors: list[str] = field(default_factory=list)
+    gige_stream: dict | None = None         # receiver counters (packets, resends, duplicates, ...)
 
 
 def default_out() -> Path:
@@ -325,6 +326,8 @@ class Capture:
             writer.add_event({"event": "syncbox_clock", "rate": rate, "offset": offset})
             self.box.close()
         if self.camera is not None:
+            if self.camera.camera.stream is not None:
+                self.stats.gige_stream = self.camera.camera.stream.stats.as_dict()
             self.camera.close()
 
     def _progress(self, elapsed: float, sync, end: str = "") -> None:

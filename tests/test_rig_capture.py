@@ -64,6 +64,7 @@ def test_capture_from_gige_phone_folder_and_syncbox(tmp_path):
     assert 70 <= len(s.thermal) <= 100 and sum(r["complete"] for r in s.thermal) == len(s.thermal)
     assert {r["ir_format"] for r in s.thermal} == {"TemperatureLinear10mK"}
     assert any(r["resent_packets"] for r in s.thermal)                 # 1 % loss, recovered
+    assert s.summary["stats"]["gige_stream"]["resend_requests"] > 0
     assert len(s.rgb) == 25 and s.rgb[0]["file"] == "rgb/IMG_0042.MOV"
     assert (tmp_path / "s" / "rgb" / "IMG_0042.MOV").read_bytes() == movie.read_bytes()
     markers = [e for e in s.events if e["event"] == "marker"]
