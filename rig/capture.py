@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rig.cli_format import HelpFormatter
 from rig.drivers import flir
 from rig.drivers.gige import GvcpError, gvsp
 from rig.drivers.gige.features import GenicamXmlError
@@ -355,7 +356,7 @@ def register(sub) -> None:
         description="Record thermal frames, phone videos and sync-box markers into a crash-safe "
                     "session folder (see the README, 'Session folder'). With no --camera, "
                     "--phone-drop or --syncbox the simulated rig is captured.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
         epilog="examples:\n  rig capture --duration 10 --out /tmp/s1            # simulated rig\n"
                "  rig capture --camera gige://192.168.1.20 --phone-drop ~/Drop --syncbox /dev/ttyACM0\n"
                "  rig info /tmp/s1 --json")

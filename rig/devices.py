@@ -7,6 +7,8 @@ import os
 import sys
 from dataclasses import asdict
 
+from rig.cli_format import HelpFormatter
+
 APPLE_VID = 0x05AC
 
 
@@ -51,7 +53,7 @@ def register(sub) -> None:
                        description="Discover GigE Vision cameras (broadcast on every interface and "
                                    "127.0.0.1), list serial ports (sync boxes by USB vendor id) and "
                                    "Apple USB devices (phones).",
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                       formatter_class=HelpFormatter,
                        epilog="example:\n  rig devices --json")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--timeout", type=float, default=0.5, help="GigE discovery wait, seconds")

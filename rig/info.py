@@ -7,6 +7,7 @@ import sys
 
 import numpy as np
 
+from rig.cli_format import HelpFormatter
 from rig.session import Session, open_session
 from rig.sync import SyncResult, FileSync, fit_clock, pair_frames, synchronise_session
 
@@ -75,7 +76,7 @@ def register(sub) -> None:
     p = sub.add_parser("info", help="summarise a session (frames, losses, fps, sync)",
                        description="Summarise a session folder written by `rig capture`; works on "
                                    "sessions still being written and on ones cut short by a crash.",
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                       formatter_class=HelpFormatter,
                        epilog="example:\n  rig info sessions/20260101-120000 --json")
     p.add_argument("session", help="session folder")
     p.add_argument("--json", action="store_true", help="print JSON")
