@@ -11,6 +11,9 @@ import importlib
 import sys
 
 COMMANDS = [
+    "rig.capture",
+    "rig.devices",
+    "rig.info",
 ]
 
 

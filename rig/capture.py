@@ -1,0 +1,397 @@
+"""`rig capture`: record a session from the thermal camera, the phone drop folder and the sync box.
+
+Threads: the thermal source (GigE receiver or the simulated camera) fills a queue; a writer
+commits frames to the session in group commits; a phone thread takes finished files from
+the drop folder, decodes their PTS and motion energy, and links them in; the main thread
+pings the sync box, prints a progress line and re-estimates sync every few seconds.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import logging
+import platform
+import queue
+import shutil
+import sys
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rig.cli_format import HelpFormatter
+from rig.drivers import flir
+from rig.drivers.gige import GvcpError, gvsp
+from rig.drivers.gige.features import GenicamXmlError
+from rig.drivers.syncbox import SyncBoxError
+from rig.drivers.gige.stream import Frame, StreamConfig
+from rig.drivers.phone import PHOTO_SUFFIXES, DropFolder, probe_video
+from rig.session import SessionWriter, open_session
+from rig.sync import change_energy, synchronise_session, thumbnail
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class CaptureConfig:
+    duration_s: float = 60.0
+    out: Path | None = None                 # default: sessions/YYYYmmdd-HHMMSS
+    camera: str | None = None               # gige://HOST[:PORT]
+    phone_drop: Path | None = None
+    syncbox: str | None = None              # serial port
+    ir_format: str = "TemperatureLinear10mK"
+    packet_size: int = 1500
+    marker_period_s: float = 1.0            # sync-box lamp pulse period (more switches, finer sync)
+    marker_on_s: float = 0.5
+    settle_s: float = 1.0                   # drop-folder quiet time before a file counts
+    sim_segment_s: float = 10.0             # simulated phone: seconds per movie file
+    sim_phone_offset_s: float = 0.137       # simulated phone clock error ...
+    sim_phone_drift_ppm: float = 50.0       # ... and drift, for sync to recover
+    sim_lamp: bool = True                   # simulated rig: a sync-box lamp in view of both cameras
+    sim_scene: str = "world"                # "world" (rig.sim) or "synthetic"
+    seed: int = 0
+    sync_every_s: float = 5.0
+    progress: bool = True
+
+
+@dataclass
+class CaptureStats:
+    thermal_frames: int = 0
+    rgb_frames: int = 0
+    rgb_files: int = 0
+    markers: int = 0
+    errors: list[str] = field(default_factory=list)
+    gige_stream: dict | None = None         # receiver counters (packets, resends, duplicates, ...)
+
+
+def default_out() -> Path:
+    return Path("sessions") / dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+
+
+class Capture:
+    def __init__(self, config: CaptureConfig):
+        self.cfg = config
+        self.simulated = not (config.camera or config.phone_drop or config.syncbox)
+        self.out = Path(config.out or default_out())
+        self.stats = CaptureStats()
+        self.frames: queue.Queue[Frame] = queue.Queue()
+        self.stop = threading.Event()
+        self.threads: list[threading.Thread] = []
+        self.camera = None              # FlirA700 when a real camera is used
+        self.sim_camera = None
+        self.sim_phone = None
+        self.box = None
+        self.lamp = None                # simulated sync-box lamp
+        self.drop: DropFolder | None = None
+        self.t_start = 0.0
+        self._rate: list[tuple[float, int]] = []      # (time, thermal frames) for the fps shown
+        # beside the session (same file system, so files are hard-linked in), not inside it
+        self.sim_drop_dir = self.out.parent / f".{self.out.name}.sim-phone-drop"
+
+    # -- set-up -----------------------------------------------------------------------------
+    def _open_devices(self) -> dict:
+        cfg = self.cfg
+        meta: dict = {"simulated": self.simulated, "requested_duration_s": cfg.duration_s,
+                      "host": platform.node(), "created": dt.datetime.now(dt.timezone.utc).isoformat()}
+        if cfg.camera:
+            self.camera = flir.FlirA700.open(cfg.camera)
+            self.camera.configure(cfg.ir_format)
+            cam = self.camera.camera
+            meta["thermal"] = {"source": cfg.camera, "tick_hz": cam.tick_hz,
+                               "device": asdict(cam.info) if cam.info else None}
+        elif self.simulated:
+            from rig.simulated import Lamp, SimClock, SimThermalCamera, default_scene
+            self.lamp = Lamp() if cfg.sim_lamp else None
+            self.scene = default_scene(cfg.seed, lamp=self.lamp, world=cfg.sim_scene == "world")
+            if hasattr(self.scene, "prerender"):
+                if cfg.progress:
+                    print(f"rendering the simulated world ({self.scene.n_keys} keyframes per camera)...",
+                          file=sys.stderr, flush=True)
+                self.scene.prerender({"thermal": (640, 480), "rgb": (640, 480)})
+            now = time.monotonic()
+            self.sim_camera = SimThermalCamera(self.scene, ir_format=cfg.ir_format, scene_t0=now,
+                                               clock=SimClock(5000.0, 20.0, now), seed=cfg.seed)
+            meta["thermal"] = {"source": "simulated", "tick_hz": self.sim_camera.tick_hz,
+                               "device": {"model": "simulated FLIR A700"}}
+        if cfg.phone_drop:
+            self.drop = DropFolder(cfg.phone_drop, settle_s=cfg.settle_s)
+            meta["rgb"] = {"source": str(cfg.phone_drop)}
+        elif self.simulated:
+            from rig.simulated import SimPhone
+            drop = self.sim_drop_dir
+            drop.mkdir(parents=True, exist_ok=True)
+            now = time.monotonic()
+            self.sim_phone = SimPhone(self.scene, drop, segment_s=cfg.sim_segment_s,
+                                      clock_offset_s=cfg.sim_phone_offset_s,
+                                      drift_ppm=cfg.sim_phone_drift_ppm, scene_t0=self.sim_camera.scene_t0,
+                                      clock_t0=now, realtime_minus_monotonic=time.time() - now, seed=cfg.seed)
+            self.drop = DropFolder(drop, settle_s=0.2)
+            meta["rgb"] = {"source": "simulated phone", "clock_offset_s": cfg.sim_phone_offset_s,
+                           "drift_ppm": cfg.sim_phone_drift_ppm}
+        if cfg.syncbox:
+            from rig.drivers.syncbox import SyncBox
+            self.box = SyncBox(cfg.syncbox)
+            for _ in range(5):
+                self.box.ping()
+            meta["syncbox"] = {"port": cfg.syncbox, "identity": self.box.identity}
+        return meta
+
+    # -- threads ----------------------------------------------------------------------------
+    def _thermal_source(self) -> None:
+        try:
+            if self.sim_camera is not None:
+                self.sim_camera.run(self.frames, self.stop)
+                return
+            while not self.stop.is_set():
+                try:
+                    self.frames.put(self.camera.next_frame(timeout=0.2))
+                except queue.Empty:
+                    continue
+        except Exception as exc:                       # surfaces in the progress line and summary
+            self.stats.errors.append(f"thermal: {exc}")
+            log.exception("thermal source failed")
+
+    def _thermal_writer(self, writer: SessionWriter) -> None:
+        prev = None
+        epoch = -1
+        while not (self.stop.is_set() and self.frames.empty() and not self._source_alive()):
+            try:
+                batch = [self.frames.get(timeout=0.2)]
+            except queue.Empty:
+                continue
+            while not self.frames.empty() and len(batch) < 64:
+                batch.append(self.frames.get_nowait())
+            items = []
+            for f in batch:
+                e = self._epoch_of(f)
+                if e != epoch:
+                    writer.add_event({"event": "epoch", "epoch": e, **self._epoch_meta(f), "host_ns": f.host_ns})
+                    epoch = e
+                counts = f.array()
+                th = thumbnail(counts)
+                items.append((f.data, {
+                    "block_id": f.block_id, "device_ts": f.timestamp, "host_ns": f.host_ns,
+                    "host_done_ns": f.host_done_ns, "width": f.width, "height": f.height,
+                    "pixel_format": gvsp.PIXEL_FORMAT_NAMES.get(f.pixel_format, hex(f.pixel_format)),
+                    "ir_format": f.meta.get("ir_format"), "scale_k": f.meta.get("scale_k"), "epoch": e,
+                    "complete": f.complete, "missing_packets": f.missing_packets,
+                    "resent_packets": f.resent_packets, "dropped_before": f.dropped_before,
+                    "change": change_energy(prev if f.complete else None, th)}))
+                prev = th if f.complete else prev
+            writer.add_thermal(items)
+            self.stats.thermal_frames += len(items)
+
+    def _source_alive(self) -> bool:
+        return any(t.name == "thermal-source" and t.is_alive() for t in self.threads)
+
+    def _epoch_of(self, f: Frame) -> int:
+        return self.camera._epoch_index if self.camera is not None else 0
+
+    def _epoch_meta(self, f: Frame) -> dict:
+        if self.camera is not None:
+            return self.camera.epochs[self.camera._epoch_index].meta()
+        return {"ir_format": f.meta.get("ir_format"), "scale_k": f.meta.get("scale_k")}
+
+    def _phone(self, writer: SessionWriter) -> None:
+        deadline = None
+        while True:
+            if deadline is None and self.stop.is_set() and not self._sim_phone_alive():
+                # files still arriving get their settle time (and a little more), then we stop
+                deadline = time.monotonic() + 2 * self.drop.settle_s + 2.0
+            for path in self.drop.poll():
+                self._ingest(writer, path)
+            if deadline is not None and (time.monotonic() > deadline or not self.drop.pending()):
+                return
+            time.sleep(0.1 if self.stop.is_set() else 0.25)
+
+    def _sim_phone_alive(self) -> bool:
+        return any(t.name == "sim-phone" and t.is_alive() for t in self.threads)
+
+    def _ingest(self, writer: SessionWriter, path: Path) -> None:
+        arrived = time.monotonic_ns()
+        try:
+            if path.suffix.lower() in PHOTO_SUFFIXES:
+                writer.add_rgb_file(path, [], {"kind": "photo", "host_ns": arrived})
+            else:
+                info = probe_video(path)
+                frames = [{"frame": f["frame"], "pts": f["pts"], "pts_s": f["pts_s"], "motion": f["motion"]}
+                          for f in info.frames]
+                writer.add_rgb_file(path, frames, {"kind": "video", "host_ns": arrived, **info.file_record()})
+                self.stats.rgb_frames += len(frames)
+                self.stats.rgb_files += 1
+        except Exception as exc:          # a broken file must not stop the capture
+            self.stats.errors.append(f"{path.name}: {exc}")
+            writer.add_event({"event": "rgb_error", "file": str(path), "error": str(exc), "host_ns": arrived})
+        self.drop.mark_done(path)
+
+    def _sim_syncbox(self, writer: SessionWriter) -> None:
+        """The simulated rig's sync box: pulses the lamp, reports switches on the host clock."""
+        n = 0
+        rng = np.random.default_rng(self.cfg.seed)
+        # irregular intervals (like the box's): a periodic train would fit at any whole period
+        while not self.stop.wait(self.cfg.marker_period_s * rng.uniform(0.6, 1.4) - self.cfg.marker_on_s):
+            for state in (1, 0):
+                t = time.monotonic()
+                self.lamp.switch(state, t - self.sim_camera.scene_t0)     # the scene's time
+                n += 1
+                writer.add_event({"event": "marker", "n": n, "state": state, "host_ns": int(t * 1e9),
+                                  "host_s": t, "simulated": True})
+                self.stats.markers += 1
+                if state and self.stop.wait(self.cfg.marker_on_s):
+                    break
+
+    def _poll_syncbox(self, writer: SessionWriter) -> None:
+        self.box.ping()
+        rate, offset = self.box.clock()
+        while not self.box.markers.empty():
+            m = self.box.markers.get_nowait()
+            writer.add_event({"event": "marker", "n": m.n, "state": m.state, "box_us": m.box_us,
+                              "host_ns": m.host_ns, "host_s": rate * m.box_us / 1e6 + offset})
+            self.stats.markers += 1
+
+    # -- run --------------------------------------------------------------------------------
+    def run(self) -> dict:
+        cfg = self.cfg
+        if self.out.exists() and any(self.out.iterdir()):
+            raise FileExistsError(f"session folder {self.out} exists and is not empty")
+        meta = self._open_devices()
+        writer = SessionWriter(self.out, meta)
+        reader = None
+        last_sync = None
+        try:
+            if self.camera is not None:
+                self.camera.start(StreamConfig(packet_size=cfg.packet_size))
+            if self.box is not None:
+                self.box.start(cfg.marker_period_s, cfg.marker_on_s)
+            self._spawn("thermal-source", self._thermal_source)
+            self._spawn("thermal-writer", self._thermal_writer, writer)
+            if self.drop is not None:
+                self._spawn("phone", self._phone, writer)
+            if self.sim_phone is not None:
+                self._spawn("sim-phone", self.sim_phone.run, self.stop)
+            if self.lamp is not None:
+                self._spawn("sim-syncbox", self._sim_syncbox, writer)
+            self.t_start = time.monotonic()
+            next_sync = self.t_start + cfg.sync_every_s
+            try:
+                while (elapsed := time.monotonic() - self.t_start) < cfg.duration_s:
+                    time.sleep(0.5)
+                    if self.box is not None:
+                        self._poll_syncbox(writer)
+                    if time.monotonic() >= next_sync:
+                        reader = reader or open_session(self.out)
+                        reader.refresh()
+                        last_sync = synchronise_session(reader)
+                        writer.write_sync(last_sync.as_dict())
+                        next_sync += cfg.sync_every_s
+                    if cfg.progress:
+                        self._progress(elapsed, last_sync)
+            except KeyboardInterrupt:
+                print("\ninterrupted: finishing the session", file=sys.stderr)
+        finally:
+            if self.sim_phone is not None:
+                self.sim_phone.stopped_at = time.monotonic()
+            self.stop.set()
+            self._shutdown(writer)
+        reader = open_session(self.out)
+        final = synchronise_session(reader)
+        writer.write_sync(final.as_dict())
+        summary = {"stats": asdict(self.stats), "sync_residual_ms": final.residual_ms,
+                   "simulated": self.simulated}
+        if self.sim_phone is not None:
+            summary["sim_truth"] = self.sim_phone.truth
+            shutil.rmtree(self.sim_drop_dir, ignore_errors=True)
+        writer.close(summary)
+        if cfg.progress:
+            self._progress(time.monotonic() - self.t_start, final, end="\n")
+        return summary
+
+    def _spawn(self, name: str, target, *args) -> None:
+        t = threading.Thread(target=target, args=args, name=name, daemon=True)
+        t.start()
+        self.threads.append(t)
+
+    def _shutdown(self, writer: SessionWriter) -> None:
+        if self.camera is not None:
+            try:
+                self.camera.camera.stop_acquisition()
+            except Exception as exc:
+                self.stats.errors.append(f"stopping camera: {exc}")
+        for t in self.threads:
+            t.join(timeout=120)
+        if self.box is not None:
+            self._poll_syncbox(writer)
+            rate, offset = self.box.clock()
+            writer.add_event({"event": "syncbox_clock", "rate": rate, "offset": offset})
+            self.box.close()
+        if self.camera is not None:
+            if self.camera.camera.stream is not None:
+                self.stats.gige_stream = self.camera.camera.stream.stats.as_dict()
+            self.camera.close()
+
+    def _progress(self, elapsed: float, sync, end: str = "") -> None:
+        th = self.stats.thermal_frames
+        now = time.monotonic()
+        self._rate.append((now, th))
+        while len(self._rate) > 2 and now - self._rate[0][0] > 2.0:
+            self._rate.pop(0)
+        (t0, n0), (t1, n1) = self._rate[0], self._rate[-1]
+        fps = (n1 - n0) / (t1 - t0) if t1 > t0 else 0.0
+        losses = ""
+        if self.camera is not None and self.camera.camera.stream is not None:
+            s = self.camera.camera.stream.stats
+            losses = f" incomplete {s.incomplete} dropped {s.dropped} resent {s.resent_packets}"
+        res = f"{sync.residual_ms:.1f} ms" if sync is not None and sync.residual_ms is not None else "-"
+        off = f" offset {sync.rgb_offset_ms:+.0f} ms" if sync is not None and sync.rgb_offset_ms is not None else ""
+        print(f"\r{elapsed:6.1f}/{self.cfg.duration_s:.0f} s | thermal {th} ({fps:4.1f} fps){losses}"
+              f" | rgb {self.stats.rgb_frames} in {self.stats.rgb_files} files | markers {self.stats.markers}"
+              f" | sync residual {res}{off}   ", end=end, file=sys.stderr, flush=True)
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "capture", help="record a session (simulated rig when no device is named)",
+        description="Record thermal frames, phone videos and sync-box markers into a crash-safe "
+                    "session folder (see the README, 'Session folder'). With no --camera, "
+                    "--phone-drop or --syncbox the simulated rig is captured.",
+        formatter_class=HelpFormatter,
+        epilog="examples:\n  rig capture --duration 10 --out /tmp/s1            # simulated rig\n"
+               "  rig capture --camera gige://192.168.1.20 --phone-drop ~/Drop --syncbox /dev/ttyACM0\n"
+               "  rig info /tmp/s1 --json")
+    p.add_argument("--duration", type=float, default=60.0, help="seconds to record")
+    p.add_argument("--camera", help="thermal camera, gige://HOST[:PORT]")
+    p.add_argument("--phone-drop", type=Path, help="folder where the phone's files arrive")
+    p.add_argument("--syncbox", help="serial port of the sync box, e.g. /dev/ttyACM0")
+    p.add_argument("--out", type=Path, help="session folder to create (default sessions/<date-time>)")
+    p.add_argument("--ir-format", default="TemperatureLinear10mK", choices=flir.IR_FORMATS)
+    p.add_argument("--packet-size", type=int, default=1500, help="GVSP packet size (SCPS), bytes")
+    p.add_argument("--settle", type=float, default=1.0, help="seconds a dropped file must stay unchanged")
+    p.add_argument("--seed", type=int, default=0, help="simulated rig: scene seed")
+    p.add_argument("--sim-scene", choices=["world", "synthetic"], default="world",
+                   help="simulated rig: the project's simulated world, or cheap synthetic warm blobs")
+    p.add_argument("--no-sim-lamp", action="store_true",
+                   help="simulated rig without its sync-box lamp: sync falls back to cross-correlation")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    p.set_defaults(func=main)
+
+
+def main(args) -> int:
+    if args.duration <= 0:
+        print("rig capture: --duration must be positive", file=sys.stderr)
+        return 2
+    cfg = CaptureConfig(duration_s=args.duration, out=args.out, camera=args.camera,
+                        phone_drop=args.phone_drop, syncbox=args.syncbox, ir_format=args.ir_format,
+                        packet_size=args.packet_size, settle_s=args.settle, seed=args.seed,
+                        sim_lamp=not args.no_sim_lamp, sim_scene=args.sim_scene,
+                        progress=not args.quiet)
+    try:
+        cap = Capture(cfg)
+        summary = cap.run()
+    except (FileExistsError, NotADirectoryError, ValueError, OSError, SyncBoxError, GvcpError,
+            GenicamXmlError) as exc:
+        print(f"rig capture: {exc}", file=sys.stderr)
+        return 2
+    print(cap.out)
+    return 1 if summary["stats"]["errors"] else 0

@@ -1,0 +1,117 @@
+"""`rig capture` / `rig info` / `rig devices` end to end: simulated rig, the fake GigE camera with
+a phone drop folder and a sync box, and kill -9 in the middle of a capture."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rig.capture import Capture, CaptureConfig
+from rig.cli import main as rig_main
+from rig.info import session_info
+from rig.session import open_session
+from tests.fakes.fake_gige import FakeConfig, FakeGigECamera
+from tests.fakes.fake_phone import drop_slowly, write_mov
+from tests.fakes.fake_syncbox import FakeSyncBox
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_simulated_rig_capture_and_info(tmp_path, capsys):
+    """The simulated world (rig.sim) through the whole capture path."""
+    cfg = CaptureConfig(duration_s=5.0, out=tmp_path / "s", sim_segment_s=2.5, sync_every_s=2.0, progress=False)
+    Capture(cfg).run()
+    assert rig_main(["info", str(tmp_path / "s"), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    th, rgb = info["streams"]["thermal"], info["streams"]["rgb"]
+    assert info["closed"] and 4.0 < info["duration_s"] < 6.5
+    assert th["complete"] >= 100 and th["incomplete"] == 0 and th["dropped"] == 0 and th["fps"] == pytest.approx(30, abs=3)
+    assert rgb["frames"] >= 90 and rgb["files"] >= 2 and rgb["fps"] == pytest.approx(30, abs=3)
+    assert info["sync"]["method"] == "markers" and info["pairs"] > 80
+    s = open_session(tmp_path / "s")
+    f = next(s.iter_thermal())
+    assert f.counts.shape == (480, 640) and 280 < f.kelvin().mean() < 340
+    img = next(s.iter_rgb()).image
+    assert img.shape == (480, 640, 3)
+    # the phone's clock error is recovered (simulation ground truth is in the summary)
+    truth = {t["file"]: t for t in s.summary["sim_truth"]}
+    for fs in s.sync["files"]:
+        t = truth[Path(fs["file"]).name]
+        err_ms = (fs["offset_s"] - (t["true_start_host_s"] - t["nominal_start_host_s"])) * 1e3
+        assert abs(err_ms) < 16.7, (fs, err_ms)
+
+
+def test_capture_from_gige_phone_folder_and_syncbox(tmp_path):
+    drop = tmp_path / "drop"
+    drop.mkdir()
+    movie = write_mov(tmp_path / "IMG_0042.MOV", (np.full((48, 64, 3), i * 9, np.uint8) for i in range(25)),
+                      [i / 25 for i in range(25)], time.time())
+    box = FakeSyncBox()
+    with FakeGigECamera(FakeConfig(width=160, height=120, loss=0.01)) as fake:
+        threading.Timer(0.5, drop_slowly, args=(movie, drop), kwargs={"chunk": 2048, "delay_s": 0.01}).start()
+        code = rig_main(["capture", "--duration", "3", "--camera", fake.url, "--phone-drop", str(drop),
+                         "--syncbox", box.port, "--settle", "0.3", "--out", str(tmp_path / "s"), "--quiet"])
+    box.close()
+    assert code == 0
+    s = open_session(tmp_path / "s")
+    assert s.closed and not s.meta["simulated"] and s.meta["thermal"]["device"]["serial"] == "FAKE0700"
+    assert 70 <= len(s.thermal) <= 100 and sum(r["complete"] for r in s.thermal) == len(s.thermal)
+    assert {r["ir_format"] for r in s.thermal} == {"TemperatureLinear10mK"}
+    assert any(r["resent_packets"] for r in s.thermal)                 # 1 % loss, recovered
+    assert s.summary["stats"]["gige_stream"]["resend_requests"] > 0
+    assert len(s.rgb) == 25 and s.rgb[0]["file"] == "rgb/IMG_0042.MOV"
+    assert (tmp_path / "s" / "rgb" / "IMG_0042.MOV").read_bytes() == movie.read_bytes()
+    markers = [e for e in s.events if e["event"] == "marker"]
+    assert len(markers) >= 2 and any(e["event"] == "syncbox_clock" for e in s.events)
+    info = session_info(s)
+    assert info["streams"]["thermal"]["incomplete"] == 0 and info["markers"] == len(markers)
+
+
+def test_kill_9_during_capture_keeps_every_committed_frame(tmp_path):
+    out = tmp_path / "s"
+    proc = subprocess.Popen([sys.executable, "-m", "rig", "capture", "--duration", "60", "--out", str(out),
+                             "--sim-scene", "synthetic", "--quiet"], cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    index = out / "thermal.jsonl"
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        if index.exists() and index.read_bytes().count(b"\n") >= 60:
+            break
+        time.sleep(0.1)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    s = open_session(out)
+    assert not s.closed and len(s.thermal) >= 60
+    n = 0
+    for f in s.iter_thermal():
+        assert f.counts.shape == (480, 640) and f.counts.min() > 0
+        n += 1
+    assert n == len(s.thermal)
+    info = session_info(s)                     # a crashed session still summarises
+    assert info["streams"]["thermal"]["frames"] == n and info["closed"] is False
+
+
+def test_cli_errors_are_clear(tmp_path, capsys):
+    (tmp_path / "busy").mkdir()
+    (tmp_path / "busy" / "x").write_text("x")
+    assert rig_main(["capture", "--duration", "1", "--out", str(tmp_path / "busy"), "--quiet"]) == 2
+    assert "not empty" in capsys.readouterr().err
+    assert rig_main(["capture", "--duration", "1", "--camera", "usb://x", "--out", str(tmp_path / "c")]) == 2
+    assert "gige://" in capsys.readouterr().err
+    assert rig_main(["info", str(tmp_path)]) == 2
+    assert "not a thermal4d session" in capsys.readouterr().err
+
+
+def test_devices_lists_what_it_can(capsys):
+    assert rig_main(["devices", "--json", "--timeout", "0.2"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert set(d) == {"gige", "serial", "phones", "phones_note"}
+    assert all("port" in p for p in d["serial"])
+    if not d["phones"]:
+        assert d["phones_note"] is None or "usb" in d["phones_note"].lower()
