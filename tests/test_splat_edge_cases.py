@@ -157,3 +157,19 @@ def test_bad_camera_and_options_raise_value_error(override, match):
     kwargs.update(override)
     with pytest.raises(ValueError, match=match):
         rasterization(**kwargs)
+
+
+def test_thread_count_does_not_change_the_result():
+    """Tiles are composited by one thread each, so the image is bitwise identical; gradients are
+    summed from per-thread buffers, so they agree to float rounding."""
+    g = random_gaussians(300, 3, seed=59)
+    results = []
+    for threads in (1, 2, 3):
+        params = g.to(torch.float32).requires_grad_()
+        out = rasterization(*params.tensors(), *default_camera().args(), threads=threads)
+        (out.image.sum() + out.depth.sum()).backward()
+        results.append((out.image.detach(), [t.grad for t in params.tensors()]))
+    for image, grads in results[1:]:
+        assert torch.equal(image, results[0][0])
+        for a, b in zip(grads, results[0][1]):
+            assert torch.allclose(a, b, rtol=1e-4, atol=1e-5)
