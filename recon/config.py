@@ -1,0 +1,168 @@
+"""Every hyper-parameter of training, in one place (nerfstudio style).
+
+Schedules are written as *fractions of the run* (``progress`` p in [0, 1]) rather than
+iteration numbers, so a 3-minute CPU run keeps the shape of the paper's 30k-iteration
+schedule (DTG paper 4.1: shared for 1k of 30k iterations, specialise from 10k, freeze at 20k).
+``progress`` is iteration / iterations, or elapsed / budget when a wall-clock budget is set.
+
+The baselines and the ablation ladder of the paper's Table 3 are presets of the same code
+(``METHODS``): they differ only in which modalities are trained, how deformation is shared,
+and whether routing is on.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+MODALITIES = ("rgb", "thermal")
+# Routing roles, in the order of the routing logits.
+ROLES = ("shared", "rgb", "thermal")
+
+
+@dataclass
+class ModelConfig:
+    modalities: tuple[str, ...] = MODALITIES
+    # "none": static Gaussians. "shared": one embedding and one network predicting the residuals
+    # of every trained modality (E-D3DGS; "+ shared Gaussian"). "progressive": per-modality
+    # embeddings and two stages, F_rgb then F_th on the geometry the first produced (DTG).
+    deformation: str = "progressive"
+    routing: bool = True
+    rgb_sh_degree: int = 1          # SH degree of RGB colour (<= 3); the simulator is Lambertian
+    thermal_sh_degree: int = 0      # thermal: one channel of normalised temperature (+ optional SH)
+    gaussian_embedding_dim: int = 32
+    time_embedding_dim: int = 128   # split in half: coarse rows | fine rows (E-D3DGS's two levels)
+    time_rows_coarse: int = 0       # 0: about frames/10 (E-D3DGS rule), at least 4
+    time_rows_fine: int = 0         # 0: about frames/2, at least 8
+    time_rows_fine_start: float = 0.4   # fine rows grow from this fraction of their final count...
+    time_c2f_until: float = 0.5         # ...to all rows at this progress (E-D3DGS coarse-to-fine)
+    mlp_width: int = 64
+    # Thermal stage reuses the first stage's residuals detached: thermal loss reaches the shared
+    # canonical geometry through F_th but does not reshape F_rgb (paper 3.3).
+    thermal_grad_to_rgb_deformation: bool = False
+    init_opacity: float = 0.1
+    init_embedding_std: float = 0.01    # breaks the symmetry E-D3DGS's zero init relies on time to break
+
+    def __post_init__(self):
+        self.modalities = tuple(self.modalities)
+        bad = [m for m in self.modalities if m not in MODALITIES]
+        if bad or not self.modalities:
+            raise ValueError(f"modalities must be a non-empty subset of {MODALITIES}, got {self.modalities}")
+        if self.deformation not in ("none", "shared", "progressive"):
+            raise ValueError(f"deformation must be none|shared|progressive, got {self.deformation!r}")
+        if self.routing and (len(self.modalities) < 2 or self.deformation == "none"):
+            raise ValueError("routing needs both modalities and a deformation")
+        if not 0 <= self.rgb_sh_degree <= 3 or not 0 <= self.thermal_sh_degree <= 3:
+            raise ValueError("SH degrees must be in 0..3")
+
+
+@dataclass
+class RoutingConfig:
+    all_shared_until: float = 1 / 30      # 1k of 30k iterations
+    specialise_from: float = 1 / 3        # 10k of 30k
+    freeze_at: float = 2 / 3              # 20k of 30k: routing fixed, densification stops
+    prior_before: tuple[float, float, float] = (0.8, 0.1, 0.1)
+    prior_start: tuple[float, float, float] = (0.5, 0.3, 0.2)
+    prior_end: tuple[float, float, float] = (0.15, 0.7, 0.15)
+    tau: float = 1.0
+    kl_weight: float = 0.01
+    lr: float = 1e-3
+    # The paper's 1e-3 moves logits over 30k iterations; a shorter run scales it up by
+    # reference / iterations so the logits can travel as far (1e-2 for a 3k-iteration run).
+    lr_reference_iterations: int = 30_000
+
+
+@dataclass
+class LossConfig:
+    rgb_dssim: float = 0.2           # (1-l) L1 + l (1-SSIM), as 3DGS
+    thermal_l1: float = 1.0
+    embedding_smoothness: float = 0.05   # E-D3DGS local smoothness of per-Gaussian embeddings
+    embedding_knn: int = 8
+    embedding_knn_sample: int = 1024     # Gaussians per step that pay the k-NN term
+    embedding_knn_falloff: float = 2000.0  # w = exp(-falloff d^2) for a unit-size scene; scaled by extent^2
+    time_smoothness: float = 1e-3    # second difference over time-embedding rows (a real one)
+
+
+@dataclass
+class LearningRates:
+    # 3DGS/E-D3DGS values; ``*_scene`` ones are multiplied by the scene extent E.
+    means_scene: tuple[float, float] = (1.6e-4, 1.6e-6)   # exponential decay over the run
+    deformation_scene: tuple[float, float] = (1.6e-3, 1.6e-4)
+    time_embedding: tuple[float, float] = (1.6e-3, 1.6e-4)
+    rgb_dc: float = 2.5e-3
+    rgb_rest: float = 2.5e-3 / 20
+    thermal: float = 5e-3
+    opacity: float = 0.05
+    scales: float = 5e-3
+    quats: float = 1e-3
+    embedding: float = 2.5e-3
+    thermal_background: float = 1e-2
+
+
+@dataclass
+class DensifyConfig:
+    every: int = 100                  # iterations
+    start: float = 0.03               # progress
+    stop: float = 2 / 3               # DTG: densification stops when routing freezes
+    grad_threshold: float = 2e-4      # mean NDC-scaled screen-space gradient (3DGS)
+    percent_dense: float = 0.01       # clone if max scale <= percent_dense * E, else split
+    prune_opacity: float = 0.005
+    max_gaussians: int = 60_000       # a budget: never grow beyond it
+    auto_stop: bool = False           # stop adding Gaussians when held-out error stops improving
+    auto_patience: int = 3            # densification rounds without improvement
+    auto_min_gain_db: float = 0.05
+
+
+@dataclass
+class TrainConfig:
+    method: str = "dtg"
+    model: ModelConfig = field(default_factory=ModelConfig)
+    routing: RoutingConfig = field(default_factory=RoutingConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    lr: LearningRates = field(default_factory=LearningRates)
+    densify: DensifyConfig = field(default_factory=DensifyConfig)
+    iterations: int = 3000
+    minutes: float | None = None      # wall-clock budget; progress = elapsed / budget
+    sh_increase_every: float = 0.1    # raise the active RGB SH degree every 10 % of the run
+    seed: int = 0
+    checkpoint_every: int = 500
+    log_every: int = 25
+    eval_every: int = 250             # held-out PSNR for the progress bar and the auto budget
+    max_points: int = 20_000          # initial points kept (random subset of points3d.ply)
+    threads: int = 0                  # 0: torch's default
+
+
+def _preset(**model) -> dict:
+    return {"model": model}
+
+
+METHODS: dict[str, dict] = {
+    "ed3dgs-rgb": _preset(modalities=("rgb",), deformation="shared", routing=False),
+    "ed3dgs-thermal": _preset(modalities=("thermal",), deformation="shared", routing=False),
+    "static-rgbt": _preset(modalities=MODALITIES, deformation="none", routing=False),
+    "dtg-shared": _preset(modalities=MODALITIES, deformation="shared", routing=False),
+    "dtg-embed": _preset(modalities=MODALITIES, deformation="progressive", routing=False),
+    "dtg": _preset(modalities=MODALITIES, deformation="progressive", routing=True),
+}
+
+
+def make_config(method: str = "dtg", **overrides) -> TrainConfig:
+    """The TrainConfig of a method preset, with top-level field overrides."""
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    cfg = TrainConfig(method=method, model=ModelConfig(**METHODS[method]["model"]))
+    return dataclasses.replace(cfg, **overrides) if overrides else cfg
+
+
+def config_to_dict(cfg: TrainConfig) -> dict:
+    return dataclasses.asdict(cfg)
+
+
+def config_from_dict(d: dict) -> TrainConfig:
+    d = dict(d)
+    sub = {"model": ModelConfig, "routing": RoutingConfig, "loss": LossConfig,
+           "lr": LearningRates, "densify": DensifyConfig}
+    for key, cls in sub.items():
+        fields = {f.name for f in dataclasses.fields(cls)}
+        vals = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d[key].items() if k in fields}
+        d[key] = cls(**vals)
+    return TrainConfig(**d)

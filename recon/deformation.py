@@ -1,0 +1,42 @@
+"""Embedding-based deformation (E-D3DGS; DTG paper 3.3).
+
+F(e_t, e_i) -> named residuals, one row per Gaussian. The network sees no position or time
+coordinate, only the time embedding e_t (D_t,) shared by all Gaussians at one instant and the
+per-Gaussian embedding e_i (N, D_e). Its first layer is linear, so W [e_t; e_i] = W_t e_t + W_e e_i:
+the time part is computed once per time step, not once per Gaussian.
+
+Trunk: that first layer, then ReLU -> Linear(W, W) -> ReLU -> one Linear to all residuals. E-D3DGS
+gives each residual its own two-layer head; one shared hidden layer costs a fifth of that on a CPU,
+and the output layer starts at zero so training starts from the canonical (static) model.
+"""
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+class DeformationNet(nn.Module):
+    def __init__(self, time_dim: int, embedding_dim: int, width: int, outputs: dict[str, int]):
+        super().__init__()
+        self.outputs = dict(outputs)
+        self.time_in = nn.Linear(time_dim, width)
+        self.embedding_in = nn.Linear(embedding_dim, width, bias=False)
+        self.hidden = nn.Linear(width, width)
+        self.out = nn.Linear(width, sum(self.outputs.values()))
+        nn.init.zeros_(self.out.weight)
+        nn.init.zeros_(self.out.bias)
+
+    def forward(self, e_t: torch.Tensor, embeddings: torch.Tensor) -> dict[str, torch.Tensor]:
+        """e_t: (D_t,); embeddings: (N, D_e) -> {name: (N, size)}"""
+        h = torch.relu(self.embedding_in(embeddings) + self.time_in(e_t))
+        h = torch.relu(self.hidden(h))
+        return dict(zip(self.outputs, torch.split(self.out(h), list(self.outputs.values()), dim=1)))
+
+
+def geometry_outputs() -> dict[str, int]:
+    return {"means": 3, "quats": 4, "log_scales": 3}
+
+
+def modality_outputs(modality: str, feature_size: int) -> dict[str, int]:
+    """Residuals of one modality's opacity logit (1) and features (flattened SH)."""
+    return {f"opacity_{modality}": 1, f"features_{modality}": feature_size}

@@ -1,0 +1,80 @@
+"""The per-Gaussian parameters of a DTG model: one dict of (N, ...) tensors.
+
+Shared canonical geometry (``means``, ``quats`` wxyz, ``log_scales``) and, per trained modality m,
+SH features: the DC ``features_m`` (N, 1, C_m) and, above degree 0, ``features_m_rest``
+(N, K_m - 1, C_m), kept apart because they learn at different rates (3DGS) (RGB: C=3; thermal:
+C=1, normalised temperature),
+an opacity logit ``opacity_m`` (N,), and the deformation embedding(s); routing logits
+``route_logits`` (N, 3) when routing is on.
+
+Everything that has one row per Gaussian lives in this dict, so densification and pruning
+(recon.strategy) handle a new attribute without any change.
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+
+from recon.config import ModelConfig, RoutingConfig
+
+SH_C0 = 0.28209479177387814
+
+
+def sh_coeffs(degree: int) -> int:
+    return (degree + 1) ** 2
+
+
+def value_to_sh_dc(value: torch.Tensor) -> torch.Tensor:
+    """Inverse of the rasterizer's colour = C0 * dc + 0.5 (degree 0)."""
+    return (value - 0.5) / SH_C0
+
+
+def knn_mean_sq_dist(points: torch.Tensor, k: int = 3, chunk: int = 2048) -> torch.Tensor:
+    """Mean squared distance to the k nearest other points. points: (M, 3) -> (M,)"""
+    out = []
+    for start in range(0, points.shape[0], chunk):
+        d2 = torch.cdist(points[start:start + chunk], points).pow(2)
+        kk = min(k + 1, points.shape[0])
+        vals = d2.topk(kk, dim=1, largest=False).values[:, 1:]   # drop self
+        out.append(vals.mean(1) if vals.numel() else torch.ones(d2.shape[0]))
+    return torch.cat(out)
+
+
+def embedding_keys(cfg: ModelConfig) -> list[str]:
+    if cfg.deformation == "shared":
+        return ["embedding"]
+    if cfg.deformation == "progressive":
+        return [f"embedding_{m}" for m in cfg.modalities]
+    return []
+
+
+def init_gaussians(points: torch.Tensor, colors: torch.Tensor, temperatures: torch.Tensor | None,
+                   cfg: ModelConfig, routing: RoutingConfig, generator: torch.Generator) -> dict[str, torch.Tensor]:
+    """Gaussians at initial points, 3DGS style.
+
+    points: (M, 3); colors: (M, 3) in [0, 1]; temperatures: (M,) normalised temperature or None.
+    Scales are isotropic, sqrt of the mean squared distance to the 3 nearest neighbours.
+    """
+    m = points.shape[0]
+    d2 = knn_mean_sq_dist(points).clamp_min(1e-10)
+    params = {
+        "means": points.clone().float(),
+        "quats": torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(m, 1),
+        "log_scales": torch.log(d2.sqrt()).unsqueeze(1).repeat(1, 3).float(),
+    }
+    logit = math.log(cfg.init_opacity / (1 - cfg.init_opacity))
+    values = {"rgb": colors.float(),
+              "thermal": (temperatures if temperatures is not None else torch.full((m,), 0.5)).float().view(m, 1)}
+    degrees = {"rgb": cfg.rgb_sh_degree, "thermal": cfg.thermal_sh_degree}
+    for mod in cfg.modalities:
+        channels = values[mod].shape[1]
+        params[f"features_{mod}"] = value_to_sh_dc(values[mod]).view(m, 1, channels)
+        if degrees[mod] > 0:
+            params[f"features_{mod}_rest"] = torch.zeros(m, sh_coeffs(degrees[mod]) - 1, channels)
+        params[f"opacity_{mod}"] = torch.full((m,), logit)
+    for key in embedding_keys(cfg):
+        params[key] = torch.randn(m, cfg.gaussian_embedding_dim, generator=generator) * cfg.init_embedding_std
+    if cfg.routing:
+        params["route_logits"] = torch.log(torch.tensor(routing.prior_before)).repeat(m, 1)
+    return params

@@ -1,0 +1,73 @@
+"""Training losses (DTG paper 3.4; E-D3DGS 2.4).
+
+L = L_rec + lambda_KL KL(mean s_soft || p0) + lambda_embed L_embed + lambda_time L_time, with
+RGB L1 + D-SSIM and thermal L1 over valid pixels (count 0 = no measurement).
+"""
+from __future__ import annotations
+
+import torch
+
+from recon.eval import ssim
+
+
+def rgb_loss(pred: torch.Tensor, gt: torch.Tensor, dssim_weight: float) -> torch.Tensor:
+    """(1 - l) L1 + l (1 - SSIM), as 3DGS. pred, gt: (H, W, 3) in [0, 1]."""
+    l1 = (pred - gt).abs().mean()
+    if dssim_weight <= 0:
+        return l1
+    return (1 - dssim_weight) * l1 + dssim_weight * (1 - ssim(pred, gt))
+
+
+def thermal_loss(pred: torch.Tensor, gt: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """L1 of normalised temperature over valid pixels. pred, gt: (H, W); valid: (H, W) bool."""
+    if not valid.any():
+        return pred.sum() * 0
+    return (pred - gt).abs()[valid].mean()
+
+
+def knn_indices(points: torch.Tensor, k: int, chunk: int = 2048) -> torch.Tensor:
+    """Indices (M, k) of the k nearest other points of points (M, 3)."""
+    k = min(k, points.shape[0] - 1)
+    out = []
+    for start in range(0, points.shape[0], chunk):
+        d2 = torch.cdist(points[start:start + chunk], points)
+        out.append(d2.topk(k + 1, dim=1, largest=False).indices[:, 1:])
+    return torch.cat(out)
+
+
+class EmbeddingSmoothness:
+    """E-D3DGS local smoothness: mean over neighbour pairs of sqrt(w) ||e_i - e_j||,
+    w = exp(-falloff d^2 / extent^2), neighbours by canonical position.
+
+    The k-NN graph is rebuilt when the Gaussian count changes (densification); each call scores a
+    random sample of Gaussians, which keeps the term cheap at any N.
+    """
+
+    def __init__(self, k: int, sample: int, falloff: float, extent: float):
+        self.k, self.sample, self.falloff, self.extent = k, sample, falloff, extent
+        self._n = -1
+        self._neighbours: torch.Tensor | None = None
+
+    def state(self) -> dict:
+        return {"n": self._n, "neighbours": self._neighbours}
+
+    def load_state(self, state: dict) -> None:
+        self._n, self._neighbours = state["n"], state["neighbours"]
+
+    def __call__(self, means: torch.Tensor, embeddings: list[torch.Tensor],
+                 generator: torch.Generator) -> torch.Tensor:
+        n = means.shape[0]
+        if n < 2:
+            return means.sum() * 0
+        if n != self._n:
+            self._neighbours = knn_indices(means.detach(), self.k)
+            self._n = n
+        idx = torch.randperm(n, generator=generator)[: self.sample]
+        nb = self._neighbours[idx]                                       # (S, k)
+        d2 = (means.detach()[idx, None] - means.detach()[nb]).pow(2).sum(-1)
+        w = torch.exp(-self.falloff * d2 / max(self.extent, 1e-9) ** 2)
+        total = 0
+        for e in embeddings:
+            diff = (e[idx, None] - e[nb]).pow(2).sum(-1)
+            total = total + torch.sqrt(w * diff + 1e-20).mean()
+        return total

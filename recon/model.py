@@ -1,0 +1,131 @@
+"""Dynamic Thermal Gaussians: canonical Gaussians + time embedding + deformation + routing.
+
+``render_inputs(modality, t)`` gives what the rasterizer needs for one modality at time t:
+
+- deformation "none": the canonical Gaussians (static-rgbt).
+- "shared": one network F(e_t, e_i) moves the shared geometry and changes every modality's
+  opacity and features (E-D3DGS; "+ shared Gaussian").
+- "progressive" (DTG): F_rgb(e_t, e_i^rgb) -> (dmu, dr, ds, dsigma_rgb, df_rgb), then
+  F_th(e_t, e_i^th) -> (dmu, dr, ds, dsigma_th, df_th) on the geometry the first stage produced.
+  Residuals are added to raw parameters, before activations (E-D3DGS).
+
+Routing masks multiply the activated opacity of their modality.
+"""
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from recon.config import ModelConfig
+from recon.deformation import DeformationNet, geometry_outputs, modality_outputs
+from recon.gaussians import embedding_keys, sh_coeffs
+from recon.time_embedding import TimeEmbedding
+
+GEOMETRY = ("means", "quats", "log_scales")
+
+
+def feature_shape(cfg: ModelConfig, modality: str) -> tuple[int, int]:
+    """(K, C) of a modality's SH features."""
+    if modality == "rgb":
+        return sh_coeffs(cfg.rgb_sh_degree), 3
+    return sh_coeffs(cfg.thermal_sh_degree), 1
+
+
+def time_rows(cfg: ModelConfig, n_times: int) -> tuple[int, int]:
+    coarse = cfg.time_rows_coarse or max(4, round(n_times / 10))
+    fine = cfg.time_rows_fine or max(8, round(n_times / 2))
+    return coarse, fine
+
+
+class DTGModel(nn.Module):
+    def __init__(self, cfg: ModelConfig, params: dict[str, torch.Tensor], n_times: int,
+                 backgrounds: dict[str, torch.Tensor] | None = None):
+        super().__init__()
+        self.cfg = cfg
+        self.n_times = n_times
+        self.gaussians = nn.ParameterDict({k: nn.Parameter(v) for k, v in params.items()})
+        bg = backgrounds or {}
+        self.backgrounds = nn.ParameterDict({
+            m: nn.Parameter(bg.get(m, torch.zeros(feature_shape(cfg, m)[1]))) for m in cfg.modalities})
+        self.deformers = nn.ModuleDict()
+        if cfg.deformation != "none":
+            coarse, fine = time_rows(cfg, n_times)
+            self.time_embedding = TimeEmbedding(cfg.time_embedding_dim, coarse, fine,
+                                                cfg.time_rows_fine_start, cfg.time_c2f_until)
+            stages = ["shared"] if cfg.deformation == "shared" else list(cfg.modalities)
+            for stage in stages:
+                outs = geometry_outputs()
+                for m in (cfg.modalities if stage == "shared" else [stage]):
+                    k, c = feature_shape(cfg, m)
+                    outs.update(modality_outputs(m, k * c))
+                self.deformers[stage] = DeformationNet(cfg.time_embedding_dim, cfg.gaussian_embedding_dim,
+                                                       cfg.mlp_width, outs)
+
+    @property
+    def num_gaussians(self) -> int:
+        return self.gaussians["means"].shape[0]
+
+    def stage_residuals(self, stage: str, t: float, progress: float) -> dict[str, torch.Tensor]:
+        """Residuals of one deformation stage ('shared', 'rgb' or 'thermal') at time t."""
+        key = "embedding" if stage == "shared" else f"embedding_{stage}"
+        e_t = self.time_embedding(t, progress)
+        return self.deformers[stage](e_t, self.gaussians[key])
+
+    def render_inputs(self, modality: str, t: float, progress: float = 1.0,
+                      mask: torch.Tensor | None = None,
+                      rgb_geometry: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
+        """Gaussians of one modality at time t.
+
+        mask: (N,) routing mask for this modality or None. rgb_geometry: first-stage geometry
+        residuals to reuse for the thermal stage (the RGB stage of the same iteration computed them).
+        Returns means (N,3), quats (N,4), log_scales (N,3), opacities (N,), features (N,K,C), and
+        ``geometry_residuals`` (the residuals this call applied, for reuse).
+        """
+        g = self.gaussians
+        cfg = self.cfg
+        geo = {k: g[k] for k in GEOMETRY}
+        opacity_logit = g[f"opacity_{modality}"]
+        features = g[f"features_{modality}"]
+        if f"features_{modality}_rest" in g:
+            features = torch.cat([features, g[f"features_{modality}_rest"]], dim=1)
+        applied: dict[str, torch.Tensor] = {}
+        if cfg.deformation != "none":
+            stage = "shared" if cfg.deformation == "shared" else modality
+            res = self.stage_residuals(stage, t, progress)
+            applied = {k: res[k] for k in GEOMETRY}
+            if cfg.deformation == "progressive" and modality == "thermal" and "rgb" in cfg.modalities:
+                first = rgb_geometry if rgb_geometry is not None else {
+                    k: v for k, v in self.stage_residuals("rgb", t, progress).items() if k in GEOMETRY}
+                if not cfg.thermal_grad_to_rgb_deformation:
+                    first = {k: v.detach() for k, v in first.items()}
+                applied = {k: first[k] + res[k] for k in GEOMETRY}
+            geo = {k: geo[k] + applied[k] for k in GEOMETRY}
+            opacity_logit = opacity_logit + res[f"opacity_{modality}"][:, 0]
+            features = features + res[f"features_{modality}"].view_as(features)
+        opacities = torch.sigmoid(opacity_logit)
+        if mask is not None:
+            opacities = opacities * mask
+        return {**geo, "opacities": opacities, "features": features, "geometry_residuals": applied}
+
+    def state_for_checkpoint(self) -> dict:
+        return {"state_dict": self.state_dict(), "n_times": self.n_times}
+
+    @classmethod
+    def from_checkpoint(cls, cfg: ModelConfig, state: dict) -> "DTGModel":
+        sd = state["state_dict"]
+        params = {k[len("gaussians."):]: v.clone() for k, v in sd.items() if k.startswith("gaussians.")}
+        model = cls(cfg, params, state["n_times"])
+        model.load_state_dict(sd)
+        return model
+
+
+def check_params(cfg: ModelConfig, params: dict[str, torch.Tensor]) -> None:
+    """Every expected per-Gaussian tensor is present with one row per Gaussian."""
+    expected = list(GEOMETRY) + [f"{p}_{m}" for m in cfg.modalities for p in ("features", "opacity")]
+    expected += embedding_keys(cfg) + (["route_logits"] if cfg.routing else [])
+    n = params["means"].shape[0]
+    for key in expected:
+        if key not in params:
+            raise ValueError(f"Gaussian parameter {key!r} missing")
+        if params[key].shape[0] != n:
+            raise ValueError(f"Gaussian parameter {key!r} has {params[key].shape[0]} rows, expected {n}")

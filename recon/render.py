@@ -1,0 +1,122 @@
+"""Render a DTG model: one modality, one camera, one instant."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from PIL import Image
+
+from recon import routing
+from recon.model import DTGModel
+from recon.scene import Camera
+from recon.splat import rasterization
+from recon.data import viewmat_from_c2w_opengl
+
+
+def inference_masks(model: DTGModel) -> dict[str, torch.Tensor] | None:
+    """Deterministic routing masks (argmax roles), or None when routing is off."""
+    if "route_logits" not in model.gaussians:
+        return None
+    roles = routing.hard_roles(model.gaussians["route_logits"].detach())
+    return routing.masks(torch.nn.functional.one_hot(roles, 3).float())
+
+
+def render(model: DTGModel, modality: str, t: float, camera: Camera, progress: float = 1.0,
+           sh_degree: int | None = None, mask: torch.Tensor | None = None,
+           rgb_geometry: dict[str, torch.Tensor] | None = None):
+    """-> (image (H, W, C) with the learned background, rasterizer output, the Gaussians used).
+
+    sh_degree: active SH degree (None: all the model has)."""
+    g = model.render_inputs(modality, t, progress, mask=mask, rgb_geometry=rgb_geometry)
+    feats = g["features"]
+    degree = int(round(feats.shape[1] ** 0.5)) - 1 if sh_degree is None else sh_degree
+    out = rasterization(g["means"], g["quats"], g["log_scales"], g["opacities"],
+                        feats[:, : (degree + 1) ** 2], camera.viewmat, camera.fx, camera.fy,
+                        camera.cx, camera.cy, camera.width, camera.height, sh_degree=degree)
+    image = out.image + (1 - out.alpha)[..., None] * model.backgrounds[modality]
+    return image, out, g
+
+
+@torch.no_grad()
+def render_frame(model: DTGModel, modality: str, t: float, camera: Camera) -> torch.Tensor:
+    """Inference render (routing by argmax). -> (H, W, C): RGB in [0, 1] or normalised temperature."""
+    masks = inference_masks(model)
+    image, _, _ = render(model, modality, t, camera, mask=None if masks is None else masks[modality])
+    return image
+
+
+# ---------------------------------------------------------------------- `recon render`
+def load_run(run_dir: Path) -> tuple[DTGModel, dict]:
+    """The model of a run (its latest checkpoint) and the run's scene facts (scene.json)."""
+    from recon.config import config_from_dict
+
+    ckpt = run_dir / "checkpoints" / "latest.pt"
+    facts_path = run_dir / "scene.json"
+    for path in (ckpt, facts_path):
+        if not path.exists():
+            raise SystemExit(f"{path}: missing; is {run_dir} a `recon run` folder?")
+    state = torch.load(ckpt, weights_only=False)
+    cfg = config_from_dict(state["config"])
+    return DTGModel.from_checkpoint(cfg.model, state["model"]), json.loads(facts_path.read_text())
+
+
+def camera_from_args(args, facts: dict) -> Camera:
+    cam = dict(facts["camera"])
+    for key in ("fx", "fy", "cx", "cy", "width", "height"):
+        if getattr(args, key) is not None:
+            cam[key] = getattr(args, key)
+    if args.pose:
+        text = Path(args.pose).read_text() if Path(args.pose).exists() else args.pose
+        c2w = np.asarray(json.loads(text), dtype=np.float64)
+        if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
+            raise SystemExit(f"--pose: expected a 4x4 camera-to-world matrix (OpenGL axes), got shape {c2w.shape}")
+        cam["c2w"] = c2w.tolist()
+    viewmat = torch.as_tensor(viewmat_from_c2w_opengl(np.asarray(cam["c2w"])), dtype=torch.float32)
+    return Camera(viewmat, float(cam["fx"]), float(cam["fy"]), float(cam["cx"]), float(cam["cy"]),
+                  int(cam["width"]), int(cam["height"]))
+
+
+def render_command(args) -> int:
+    from recon import viz
+    from recon.eval.renders import encode_render
+
+    model, facts = load_run(Path(args.run))
+    camera = camera_from_args(args, facts)
+    k_min, k_max = facts["thermal_range_k"]
+    prefix = Path(args.out)
+    prefix.parent.mkdir(parents=True, exist_ok=True)
+    for m in model.cfg.modalities:
+        img = render_frame(model, m, args.time, camera)
+        if m == "rgb":
+            Image.fromarray(encode_render(img.numpy(), "rgb", None)).save(f"{prefix}_rgb.png")
+        else:
+            kelvin = (img[..., 0] * (k_max - k_min) + k_min).numpy()
+            Image.fromarray(encode_render(kelvin, "thermal", facts["thermal_scale_k"])).save(f"{prefix}_thermal.png")
+            Image.fromarray(viz.thermal_image(kelvin, k_min, k_max)).save(f"{prefix}_thermal_celsius.png")
+            print(f"temperature at t={args.time:g}: min {kelvin.min() - 273.15:.1f} C, "
+                  f"max {kelvin.max() - 273.15:.1f} C")
+    print(f"wrote {prefix}_*.png")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "render", help="render RGB and temperature of a trained run at any time and pose",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Render a trained run (its latest checkpoint) at time t from a camera. Writes "
+                    "OUT_rgb.png, OUT_thermal.png (16-bit counts in the dataset's thermal_scale_k) and "
+                    "OUT_thermal_celsius.png (colour map with a colourbar in deg C).",
+        epilog="examples:\n"
+               "  recon render runs/dtg --time 0.5 --out renders/mid       # the run's first test camera\n"
+               "  recon render runs/dtg --time 0.25 --pose pose.json --out renders/novel\n"
+               "pose.json holds a 4x4 camera-to-world matrix in OpenGL axes, as transforms.json.")
+    p.add_argument("run", metavar="RUN", help="a `recon run` output folder")
+    p.add_argument("--time", type=float, default=0.5, help="normalised time in [0, 1] (default 0.5)")
+    p.add_argument("--pose", help="4x4 camera-to-world (OpenGL), a JSON file or literal (default: first test camera)")
+    for key, typ in (("fx", float), ("fy", float), ("cx", float), ("cy", float), ("width", int), ("height", int)):
+        p.add_argument(f"--{key}", type=typ, help=f"intrinsic {key} (default: the first test camera's)")
+    p.add_argument("--out", default="render", help="output prefix (default: ./render)")
+    p.set_defaults(func=render_command)

@@ -1,0 +1,176 @@
+"""`recon run`: train a method on a prepared dataset, then render, grade and export.
+
+RUN/ after a run:
+  config.json              every hyper-parameter used
+  scene.json               temperature scaling and a default camera for `recon render`
+  checkpoints/latest.pt    resumable state (written every --checkpoint-every iterations, atomically)
+  history.json             held-out PSNR, losses, Gaussians per role against iteration and seconds
+  renders/<file_path>      every test frame, same relative path and encoding as the ground truth
+  eval/metrics.{json,md}   `recon eval` of those renders
+  metrics.json             summary: per-modality means, Gaussians per role, model bytes, train time
+  strips/                  GT | render | error pictures of test views (thermal in deg C)
+  animation.gif            a test view across time, RGB beside temperature
+  export/model.ply         canonical Gaussians, 3DGS layout + thermal/role/embedding properties
+  export/deformation.pt    deformation networks, time embedding, backgrounds
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from PIL import Image
+
+from recon.config import METHODS, config_to_dict, make_config
+from recon.data import load_dataset
+from recon.eval import evaluate_run, write_render, write_results
+from recon.export import export_deformation, export_ply, model_bytes
+from recon.render import render_frame
+from recon.scene import Scene
+from recon.train import Trainer
+from recon import viz
+
+
+def render_test_views(trainer: Trainer, run_dir: Path) -> int:
+    n = 0
+    for m in trainer.cfg.model.modalities:
+        for view in trainer.scene.test[m]:
+            image = render_frame(trainer.model, m, view.time, view.camera)
+            image = image.clamp(0, 1) if m == "rgb" else trainer.scene.kelvin(image[..., 0])
+            write_render(run_dir, view.frame, image.numpy(), trainer.scene.dataset.thermal_scale_k)
+            n += 1
+    return n
+
+
+def write_strips(trainer: Trainer, run_dir: Path, count: int = 6) -> None:
+    scene = trainer.scene
+    out = run_dir / "strips"
+    out.mkdir(parents=True, exist_ok=True)
+    for m in trainer.cfg.model.modalities:
+        views = scene.test[m]
+        for view in [views[i] for i in np.linspace(0, len(views) - 1, min(count, len(views))).astype(int)] if views else []:
+            pred = render_frame(trainer.model, m, view.time, view.camera)
+            gt, valid = scene.target(view)
+            stem = Path(view.frame.file_path).stem
+            if m == "rgb":
+                strip = viz.rgb_strip(gt.numpy(), pred.clamp(0, 1).numpy())
+            else:
+                gt_k = np.where(valid.numpy(), scene.kelvin(gt).numpy(), np.nan)
+                strip = viz.thermal_strip(gt_k, scene.kelvin(pred[..., 0]).numpy())
+            Image.fromarray(strip).save(out / f"{m}_{stem}.png")
+
+
+def write_animation(trainer: Trainer, path: Path, frames: int = 24) -> None:
+    """A test view (the first test camera) across the sequence: RGB | temperature in deg C."""
+    scene = trainer.scene
+    mods = trainer.cfg.model.modalities
+    anchor = next((scene.test[m][0] for m in mods if scene.test[m]), None)
+    if anchor is None:
+        return
+    images = []
+    for t in np.linspace(0.0, 1.0, frames):
+        panels = []
+        for m in mods:
+            view = min(scene.test[m] or scene.train[m], key=lambda v: abs(v.time - t))
+            pred = render_frame(trainer.model, m, float(t), view.camera)
+            if m == "rgb":
+                panels.append((pred.clamp(0, 1).numpy() * 255 + 0.5).astype(np.uint8))
+            else:
+                panels.append(viz.thermal_image(scene.kelvin(pred[..., 0]).numpy(), scene.k_min, scene.k_max))
+        h = max(p.shape[0] for p in panels)
+        panels = [np.asarray(Image.fromarray(p).resize((round(p.shape[1] * h / p.shape[0]), h))) for p in panels]
+        images.append(Image.fromarray(np.concatenate(panels, axis=1)))
+    images[0].save(path, save_all=True, append_images=images[1:], duration=120, loop=0)
+
+
+def finish(trainer: Trainer, run_dir: Path, dataset_dir: Path) -> dict:
+    """Render, grade, draw and export a trained run. Returns the metrics summary."""
+    t0 = time.perf_counter()
+    n = render_test_views(trainer, run_dir)
+    report = evaluate_run(run_dir, dataset_dir, modalities=trainer.cfg.model.modalities) if n else {}
+    if report:
+        write_results(report, run_dir / "eval")
+    write_strips(trainer, run_dir)
+    write_animation(trainer, run_dir / "animation.gif")
+    (run_dir / "export").mkdir(parents=True, exist_ok=True)
+    export_ply(trainer.model, run_dir / "export" / "model.ply")
+    export_deformation(trainer.model, run_dir / "export" / "deformation.pt")
+    summary = {
+        "method": trainer.cfg.method, "dataset": str(dataset_dir), "iterations": trainer.iteration,
+        "train_seconds": round(trainer.elapsed, 2), "gaussians": trainer.model.num_gaussians,
+        "gaussians_per_role": trainer.counts(), "model_bytes": model_bytes(trainer.model),
+        "metrics": report.get("mean", report), "finish_seconds": round(time.perf_counter() - t0, 2),
+    }
+    (run_dir / "metrics.json").write_text(json.dumps(summary, indent=2))
+    (run_dir / "history.json").write_text(json.dumps(trainer.history, indent=1))
+    return summary
+
+
+def scene_facts(scene: Scene, data_dir: Path) -> dict:
+    """What `recon render` needs besides the model: temperature scaling and a default camera."""
+    views = scene.test["rgb"] or scene.test["thermal"] or scene.train["rgb"] or scene.train["thermal"]
+    f = views[0].frame
+    return {"dataset": str(data_dir.resolve()), "thermal_range_k": [scene.k_min, scene.k_max],
+            "thermal_scale_k": scene.dataset.thermal_scale_k,
+            "camera": {"c2w": np.asarray(f.c2w).tolist(), "fx": f.fx, "fy": f.fy, "cx": f.cx, "cy": f.cy,
+                       "width": f.width, "height": f.height}}
+
+
+def run(args: argparse.Namespace) -> int:
+    data_dir = Path(args.input)
+    if not (data_dir / "transforms.json").exists():
+        raise SystemExit(f"{data_dir}: no transforms.json here; `recon run` takes a prepared dataset "
+                         f"(see FORMATS.md or `recon simulate`)")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    scene = Scene(load_dataset(data_dir))
+    ckpt = out / "checkpoints" / "latest.pt"
+    overrides = {k: v for k, v in {"iterations": args.iterations, "minutes": args.minutes,
+                                   "seed": args.seed, "threads": args.threads}.items() if v is not None}
+    if args.resume:
+        if not ckpt.exists():
+            raise SystemExit(f"{ckpt}: no checkpoint to resume from")
+        trainer = Trainer.resume(ckpt, scene, out, **overrides)
+        print(f"resumed {ckpt} at iteration {trainer.iteration}")
+    else:
+        cfg = make_config(args.method, **overrides)
+        if args.max_gaussians:
+            cfg.densify.max_gaussians = args.max_gaussians
+        cfg.densify.auto_stop = args.auto_budget
+        trainer = Trainer(cfg, scene, out)
+    (out / "config.json").write_text(json.dumps(config_to_dict(trainer.cfg), indent=2))
+    (out / "scene.json").write_text(json.dumps(scene_facts(scene, data_dir), indent=2))
+    trainer.train()
+    summary = finish(trainer, out, data_dir)
+    print(json.dumps(summary["metrics"], indent=2))
+    print(f"{trainer.model.num_gaussians} Gaussians {summary['gaussians_per_role']}, "
+          f"{summary['model_bytes'] / 1e6:.1f} MB, trained {summary['train_seconds']:.0f} s -> {out}")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "run", help="train a method on a prepared dataset, then render, grade and export",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=__doc__,
+        epilog="examples:\n"
+               "  recon simulate data/default --frames 40 --size 160x120\n"
+               "  recon run data/default --out runs/dtg --minutes 10\n"
+               "  recon run data/default --method ed3dgs-thermal --out runs/ed-th --iterations 2000\n"
+               "  recon run data/default --out runs/dtg --resume      # continue from the last checkpoint")
+    p.add_argument("input", metavar="DATASET", help="prepared dataset folder (with transforms.json)")
+    p.add_argument("--method", default="dtg", choices=list(METHODS),
+                   help="dtg (full) or a baseline/ablation of the paper's Table 3 (default: dtg)")
+    p.add_argument("--out", required=True, help="run folder (created)")
+    p.add_argument("--iterations", type=int, help="iterations (default 3000 unless --minutes)")
+    p.add_argument("--minutes", type=float, help="wall-clock budget; the schedule is stretched to fit it")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoints/latest.pt")
+    p.add_argument("--max-gaussians", type=int, help="Gaussian budget (default 60000)")
+    p.add_argument("--auto-budget", action="store_true",
+                   help="stop adding Gaussians when held-out PSNR stops improving")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--threads", type=int, help="CPU threads (default: all)")
+    p.set_defaults(func=run)

@@ -1,0 +1,94 @@
+"""A prepared dataset as training sees it: cameras, normalised images, time steps, scene extent.
+
+Thermal images are trained as normalised temperature u = (K - K_min) / (K_max - K_min) with the
+dataset's ``thermal_range_k``; invalid pixels (count 0) are masked. Images are read lazily through
+the dataset's own memory-bounded cache.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from recon.data import Dataset, Frame
+
+
+@dataclass(frozen=True)
+class Camera:
+    viewmat: torch.Tensor   # (4, 4) world-to-camera, OpenCV axes
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    @property
+    def center(self) -> torch.Tensor:
+        r, t = self.viewmat[:3, :3], self.viewmat[:3, 3]
+        return -r.T @ t
+
+    @classmethod
+    def of_frame(cls, frame: Frame) -> "Camera":
+        return cls(torch.as_tensor(np.asarray(frame.viewmat()), dtype=torch.float32),
+                   float(frame.fx), float(frame.fy), float(frame.cx), float(frame.cy),
+                   int(frame.width), int(frame.height))
+
+
+@dataclass
+class View:
+    frame: Frame
+    camera: Camera
+    time: float
+
+
+class Scene:
+    def __init__(self, dataset: Dataset):
+        self.dataset = dataset
+        self.k_min, self.k_max = (float(v) for v in dataset.thermal_range_k)
+        self.train = {m: [self._view(f) for f in dataset.split(m, "train")] for m in ("rgb", "thermal")}
+        self.test = {m: [self._view(f) for f in dataset.split(m, "test")] for m in ("rgb", "thermal")}
+        self.times = sorted({v.time for vs in self.train.values() for v in vs})
+        self._by_time = {m: {} for m in ("rgb", "thermal")}
+        for m, views in self.train.items():
+            for v in views:
+                self._by_time[m].setdefault(v.time, []).append(v)
+
+    @staticmethod
+    def _view(frame: Frame) -> View:
+        return View(frame, Camera.of_frame(frame), float(frame.time))
+
+    def modalities(self) -> tuple[str, ...]:
+        return tuple(m for m in ("rgb", "thermal") if self.train[m])
+
+    def views_at(self, modality: str, time: float) -> list[View]:
+        return self._by_time[modality].get(time, [])
+
+    def extent(self) -> float:
+        """1.1 x the largest distance of a training camera from their mean (3DGS), floored by the
+        spread of the initial points so a nearly static handheld capture keeps sane step sizes."""
+        centers = torch.stack([v.camera.center for vs in self.train.values() for v in vs])
+        e = 1.1 * float((centers - centers.mean(0)).norm(dim=1).max())
+        pts = self.dataset.points_xyz
+        if pts is not None and len(pts) > 1:
+            p = torch.as_tensor(np.asarray(pts), dtype=torch.float32)
+            e = max(e, 0.5 * float((p - p.median(0).values).norm(dim=1).quantile(0.9)))
+        return max(e, 1e-3)
+
+    # ------------------------------------------------------------ images
+    def normalise_k(self, kelvin: torch.Tensor) -> torch.Tensor:
+        return (kelvin - self.k_min) / (self.k_max - self.k_min)
+
+    def kelvin(self, u: torch.Tensor) -> torch.Tensor:
+        return u * (self.k_max - self.k_min) + self.k_min
+
+    def target(self, view: View) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """RGB: ((H, W, 3) in [0, 1], None). Thermal: ((H, W) normalised temperature, valid (H, W))."""
+        img = self.dataset.image(view.frame)
+        if view.frame.modality == "rgb":
+            return torch.tensor(np.asarray(img), dtype=torch.float32), None
+        kelvin, valid = img if isinstance(img, tuple) else (img, np.isfinite(img))
+        kelvin = torch.as_tensor(np.nan_to_num(np.asarray(kelvin, dtype=np.float32)))
+        valid = torch.as_tensor(np.asarray(valid), dtype=torch.bool)
+        return self.normalise_k(kelvin), valid

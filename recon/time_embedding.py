@@ -1,0 +1,74 @@
+"""Time embedding e_t in R^D, defined for continuous t in [0, 1].
+
+Two learned tables, as E-D3DGS's coarse and fine levels: half of the channels come from a
+table with few rows (slow motion, temperature trends), half from one with more rows (fast
+events). A lookup is linear interpolation between neighbouring rows, so any real t works.
+
+The fine level is coarse-to-fine (E-D3DGS ``c2f``): it is read through a resampling of its
+table to fewer rows early in training, growing to all rows by ``c2f_until``.
+
+``temporal_smoothness`` is a real second difference over rows; E-D3DGS's published term pulls
+every row toward the last one (research notes, ed3dgs_facts.md 2.4), which is not what it meant.
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+def lerp_rows(table: torch.Tensor, t: float) -> torch.Tensor:
+    """Row-linear interpolation. table: (R, D); t in [0, 1] maps row 0 .. row R-1. -> (D,)"""
+    rows = table.shape[0]
+    x = min(max(float(t), 0.0), 1.0) * (rows - 1)
+    i0 = min(int(x), rows - 1)
+    i1 = min(i0 + 1, rows - 1)
+    w = x - i0
+    return table[i0] * (1.0 - w) + table[i1] * w
+
+
+def resample_rows(table: torch.Tensor, rows: int) -> torch.Tensor:
+    """Linear resampling of (R, D) to (rows, D), endpoints kept (align_corners=True)."""
+    if rows == table.shape[0]:
+        return table
+    x = table.t().unsqueeze(0)  # (1, D, R)
+    return F.interpolate(x, size=rows, mode="linear", align_corners=True)[0].t()
+
+
+class TimeEmbedding(nn.Module):
+    def __init__(self, dim: int, rows_coarse: int, rows_fine: int, fine_start: float = 0.4,
+                 c2f_until: float = 0.5):
+        super().__init__()
+        if dim % 2:
+            raise ValueError(f"time embedding dim must be even, got {dim}")
+        self.coarse = nn.Parameter(torch.zeros(rows_coarse, dim // 2))
+        self.fine = nn.Parameter(torch.zeros(rows_fine, dim // 2))
+        nn.init.normal_(self.coarse, std=0.01 / (dim ** 0.5))
+        nn.init.normal_(self.fine, std=0.01 / (dim ** 0.5))
+        self.fine_start = fine_start
+        self.c2f_until = c2f_until
+
+    @property
+    def dim(self) -> int:
+        return self.coarse.shape[1] * 2
+
+    def fine_rows_at(self, progress: float) -> int:
+        full = self.fine.shape[0]
+        if self.c2f_until <= 0:
+            return full
+        a = min(max(progress / self.c2f_until, 0.0), 1.0)
+        start = max(2, round(full * self.fine_start))
+        return int(round(start + (full - start) * a))
+
+    def forward(self, t: float, progress: float = 1.0) -> torch.Tensor:
+        """e_t: (D,)"""
+        fine = resample_rows(self.fine, self.fine_rows_at(progress))
+        return torch.cat([lerp_rows(self.coarse, t), lerp_rows(fine, t)])
+
+    def temporal_smoothness(self) -> torch.Tensor:
+        """Mean squared second difference over rows of both tables."""
+        terms = []
+        for table in (self.coarse, self.fine):
+            if table.shape[0] >= 3:
+                terms.append((table[2:] - 2 * table[1:-1] + table[:-2]).pow(2).mean())
+        return torch.stack(terms).sum() if terms else self.coarse.sum() * 0

@@ -1,0 +1,390 @@
+"""Training loop: per iteration an RGB stage update, then a thermal stage update (DTG paper 4.1).
+
+The schedule is a function of progress p in [0, 1] (iterations done / iterations, or elapsed /
+budget with ``minutes``): learning-rate decay, active SH degree, routing phases, densification
+window. A checkpoint holds everything needed to continue bit-for-bit: parameters, optimizer
+moments, densification statistics, random generator states, history.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from recon import routing
+from recon.config import TrainConfig, config_from_dict, config_to_dict
+from recon.eval import psnr
+from recon.gaussians import init_gaussians
+from recon.losses import EmbeddingSmoothness, rgb_loss, thermal_loss
+from recon.model import DTGModel, check_params
+from recon.render import inference_masks, render
+from recon.scene import Scene
+from recon.strategy import Strategy
+
+
+def log_lerp(a: float, b: float, p: float) -> float:
+    """Exponential (log-linear) decay from a to b as p goes 0 -> 1 (3DGS get_expon_lr_func)."""
+    p = min(max(p, 0.0), 1.0)
+    return math.exp(math.log(a) * (1 - p) + math.log(b) * p)
+
+
+def initial_temperatures(scene: Scene, points: torch.Tensor, max_views: int = 6) -> torch.Tensor | None:
+    """Normalised temperature of each point, averaged over a few thermal training views that see it
+    (nearest pixel; occlusion ignored). Points no view sees get the median. -> (M,) or None."""
+    views = scene.train["thermal"]
+    if not views:
+        return None
+    picks = [views[i] for i in np.linspace(0, len(views) - 1, min(max_views, len(views))).round().astype(int)]
+    total, count = torch.zeros(len(points)), torch.zeros(len(points))
+    for view in picks:
+        target, valid = scene.target(view)
+        cam = view.camera
+        pc = points @ cam.viewmat[:3, :3].T + cam.viewmat[:3, 3]
+        z = pc[:, 2]
+        u = (cam.fx * pc[:, 0] / z.clamp_min(1e-6) + cam.cx).floor().long()
+        v = (cam.fy * pc[:, 1] / z.clamp_min(1e-6) + cam.cy).floor().long()
+        ok = (z > 1e-3) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+        ok[ok.clone()] &= valid[v[ok], u[ok]]
+        total[ok] += target[v[ok], u[ok]]
+        count[ok] += 1
+    temps = total / count.clamp_min(1)
+    seen = count > 0
+    fill = temps[seen].median() if seen.any() else torch.tensor(0.5)
+    return torch.where(seen, temps, fill).clamp(0, 1)
+
+
+def initial_background(scene: Scene, modality: str) -> torch.Tensor:
+    """Median of the image borders over a few training views: a start for the learned background."""
+    views = scene.train[modality][:: max(1, len(scene.train[modality]) // 4)][:4]
+    border = []
+    for view in views:
+        img, valid = scene.target(view)
+        img = img if img.dim() == 3 else img[..., None]
+        ring = torch.cat([img[0], img[-1], img[:, 0], img[:, -1]])
+        if valid is not None:
+            ring = ring[torch.cat([valid[0], valid[-1], valid[:, 0], valid[:, -1]])]
+        border.append(ring)
+    return torch.cat(border).median(0).values if border else torch.zeros(3 if modality == "rgb" else 1)
+
+
+class Trainer:
+    def __init__(self, cfg: TrainConfig, scene: Scene, out_dir: Path | None = None,
+                 model: DTGModel | None = None, log=None):
+        self.cfg = cfg
+        self.scene = scene
+        self.out_dir = Path(out_dir) if out_dir else None
+        self.log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
+        missing = [m for m in cfg.model.modalities if not scene.train[m]]
+        if missing:
+            raise ValueError(f"method {cfg.method} trains {missing} but the dataset has no such training frames")
+        if cfg.threads:
+            torch.set_num_threads(cfg.threads)
+        torch.manual_seed(cfg.seed)
+        self.gen = torch.Generator().manual_seed(cfg.seed)
+        self.extent = scene.extent()
+        self.model = model if model is not None else self._init_model()
+        check_params(cfg.model, dict(self.model.gaussians))
+        self.optimizer = self._build_optimizer()
+        self.strategy = Strategy(cfg.densify, cfg.model.modalities, self.extent, self.gen)
+        self.smoothness = EmbeddingSmoothness(cfg.loss.embedding_knn, cfg.loss.embedding_knn_sample,
+                                              cfg.loss.embedding_knn_falloff, self.extent)
+        self.iteration = 0
+        self.elapsed = 0.0
+        self.history: list[dict] = []
+        self.best_holdout = -math.inf
+        self.rounds_without_gain = 0
+        self.holdout = self._holdout_views()
+
+    # ------------------------------------------------------------------ set-up
+    def _init_model(self) -> DTGModel:
+        ds = self.scene.dataset
+        if ds.points_xyz is None or len(ds.points_xyz) == 0:
+            raise ValueError(f"{ds.root}: no initial points (points3d.ply); recon needs an SfM point cloud")
+        pts = torch.as_tensor(np.asarray(ds.points_xyz), dtype=torch.float32)
+        rgb = torch.as_tensor(np.asarray(ds.points_rgb if ds.points_rgb is not None else np.full((len(pts), 3), 0.5)),
+                              dtype=torch.float32)
+        if rgb.max() > 1.0:
+            rgb = rgb / 255.0
+        if len(pts) > self.cfg.max_points:
+            keep = torch.randperm(len(pts), generator=self.gen)[: self.cfg.max_points]
+            pts, rgb = pts[keep], rgb[keep]
+        temps = initial_temperatures(self.scene, pts) if "thermal" in self.cfg.model.modalities else None
+        params = init_gaussians(pts, rgb, temps, self.cfg.model, self.cfg.routing, self.gen)
+        bgs = {m: initial_background(self.scene, m) for m in self.cfg.model.modalities}
+        return DTGModel(self.cfg.model, params, n_times=len(self.scene.times), backgrounds=bgs)
+
+    def _base_lr(self, key: str) -> float:
+        lr = self.cfg.lr
+        if key == "means":
+            return lr.means_scene[0] * self.extent
+        if key.startswith("features_"):
+            if key.endswith("_rest"):
+                return lr.rgb_rest if "rgb" in key else lr.thermal / 20
+            return lr.rgb_dc if "rgb" in key else lr.thermal
+        table = {"quats": lr.quats, "log_scales": lr.scales, "route_logits": self.cfg.routing.lr}
+        if key in table:
+            return table[key]
+        if key.startswith("opacity_"):
+            return lr.opacity
+        if key.startswith("embedding"):
+            return lr.embedding
+        raise KeyError(f"no learning rate for Gaussian parameter {key!r}")
+
+    def _build_optimizer(self) -> torch.optim.Optimizer:
+        groups = [{"params": [p], "name": k, "lr": self._base_lr(k)} for k, p in self.model.gaussians.items()]
+        if self.cfg.model.deformation != "none":
+            groups.append({"params": list(self.model.deformers.parameters()), "name": "deformation",
+                           "lr": self.cfg.lr.deformation_scene[0] * self.extent})
+            groups.append({"params": list(self.model.time_embedding.parameters()), "name": "time_embedding",
+                           "lr": self.cfg.lr.time_embedding[0]})
+        groups.append({"params": list(self.model.backgrounds.parameters()), "name": "backgrounds",
+                       "lr": self.cfg.lr.thermal_background})
+        return torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)
+
+    def _holdout_views(self):
+        """Views for the progress line and, with the automatic budget, for deciding when to stop
+        growing. The progress line shows the test view nearest the middle of the sequence; the
+        automatic budget must not look at test data, so it holds out every 8th training time step
+        instead (those steps are then not trained on)."""
+        out = {}
+        held = set(self.scene.times[4::8]) if self.cfg.densify.auto_stop else set()
+        self.train_times = [t for t in self.scene.times if t not in held]
+        for m in self.cfg.model.modalities:
+            if held:
+                out[m] = [v for v in self.scene.train[m] if v.time in held]
+            else:
+                views = self.scene.test[m] or self.scene.train[m]
+                out[m] = [min(views, key=lambda v: abs(v.time - 0.5))] if views else []
+        return out
+
+    # ------------------------------------------------------------------ schedule
+    def progress(self) -> float:
+        if self.cfg.minutes:
+            return min(self.elapsed / (60.0 * self.cfg.minutes), 1.0)
+        return min(self.iteration / max(self.cfg.iterations, 1), 1.0)
+
+    def done(self) -> bool:
+        return self.progress() >= 1.0
+
+    def expected_iterations(self) -> float:
+        """Iterations this run will make: the budget, or with --minutes the pace so far."""
+        if self.cfg.minutes and self.iteration >= 20 and self.progress() > 0:
+            return self.iteration / self.progress()
+        return float(self.cfg.iterations)
+
+    def _update_lrs(self, p: float) -> None:
+        lr = self.cfg.lr
+        routing_scale = max(1.0, self.cfg.routing.lr_reference_iterations / max(self.expected_iterations(), 1.0))
+        for group in self.optimizer.param_groups:
+            if group["name"] == "route_logits":
+                group["lr"] = self.cfg.routing.lr * routing_scale
+            elif group["name"] == "means":
+                group["lr"] = log_lerp(*lr.means_scene, p) * self.extent
+            elif group["name"] == "deformation":
+                group["lr"] = log_lerp(*lr.deformation_scene, p) * self.extent
+            elif group["name"] == "time_embedding":
+                group["lr"] = log_lerp(*lr.time_embedding, p)
+
+    def active_sh_degree(self, modality: str, p: float) -> int:
+        full = self.cfg.model.rgb_sh_degree if modality == "rgb" else self.cfg.model.thermal_sh_degree
+        return min(full, int(p / self.cfg.sh_increase_every)) if self.cfg.sh_increase_every > 0 else full
+
+    # ------------------------------------------------------------------ one iteration
+    def _routing_noise(self, p: float) -> torch.Tensor | None:
+        """Gumbel noise (N, 3) for this iteration while routing learns, else None."""
+        if not self.cfg.model.routing or routing.phase(self.cfg.routing, p) not in ("learn", "specialise"):
+            return None
+        return routing.gumbel_noise(self.model.gaussians["route_logits"].shape, self.gen)
+
+    def _stage(self, modality: str, t: float, p: float, noise, rgb_geometry, regularise: bool) -> dict:
+        views = self.scene.views_at(modality, t)
+        view = views[int(torch.randint(len(views), (1,), generator=self.gen))]
+        target, valid = self.scene.target(view)
+        mask, reg, stats = None, 0.0, {}
+        if noise is not None:
+            hard, soft = routing.assignment(self.model.gaussians["route_logits"], self.cfg.routing.tau, noise)
+            mask = routing.masks(hard)[modality]
+            if regularise:
+                kl = routing.kl_to_prior(soft, routing.prior(self.cfg.routing, p))
+                reg = reg + self.cfg.routing.kl_weight * kl
+                stats["kl"] = float(kl.detach())
+        elif self.cfg.model.routing and routing.phase(self.cfg.routing, p) == "frozen":
+            mask = inference_masks(self.model)[modality]
+        image, out, g = render(self.model, modality, t, view.camera, p,
+                               sh_degree=self.active_sh_degree(modality, p), mask=mask, rgb_geometry=rgb_geometry)
+        if modality == "rgb":
+            rec = rgb_loss(image, target, self.cfg.loss.rgb_dssim)
+        else:
+            rec = self.cfg.loss.thermal_l1 * thermal_loss(image[..., 0], target, valid)
+        if regularise:
+            reg = reg + self._regularisers(stats)
+        loss = rec + reg
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        self.strategy.accumulate(modality, out.means2d.grad, out.radii, view.camera.width, view.camera.height)
+        stats[f"loss_{modality}"] = float(rec.detach())
+        return {"stats": stats, "geometry": {k: v.detach() for k, v in g["geometry_residuals"].items()}}
+
+    def _regularisers(self, stats: dict):
+        cfg, model = self.cfg.loss, self.model
+        reg = 0.0
+        keys = [k for k in model.gaussians if k.startswith("embedding")]
+        if keys and cfg.embedding_smoothness > 0:
+            e = self.smoothness(model.gaussians["means"], [model.gaussians[k] for k in keys], self.gen)
+            reg = reg + cfg.embedding_smoothness * e
+            stats["embed"] = float(e.detach())
+        if self.cfg.model.deformation != "none" and cfg.time_smoothness > 0:
+            tv = model.time_embedding.temporal_smoothness()
+            reg = reg + cfg.time_smoothness * tv
+            stats["time"] = float(tv.detach())
+        return reg
+
+    def step(self) -> dict:
+        """One iteration. Returns its statistics."""
+        start = time.perf_counter()
+        p = self.progress()
+        self._update_lrs(p)
+        t = self.train_times[int(torch.randint(len(self.train_times), (1,), generator=self.gen))]
+        mods = [m for m in ("rgb", "thermal") if m in self.cfg.model.modalities and self.scene.views_at(m, t)]
+        noise = self._routing_noise(p)
+        stats, rgb_geometry = {}, None
+        for i, m in enumerate(mods):
+            res = self._stage(m, t, p, noise, rgb_geometry if m == "thermal" else None, regularise=(i == 0))
+            stats.update(res["stats"])
+            if m == "rgb" and self.cfg.model.deformation == "progressive":
+                rgb_geometry = res["geometry"]
+        self.iteration += 1
+        report = self.strategy.step(self.model.gaussians, self.optimizer, self.iteration, p)
+        if report:
+            stats.update(report)
+        self.elapsed += time.perf_counter() - start
+        return stats
+
+    # ------------------------------------------------------------------ evaluation
+    @torch.no_grad()
+    def holdout_psnr(self) -> dict[str, float]:
+        from recon.render import render_frame
+        out = {}
+        for m, views in self.holdout.items():
+            scores = []
+            for view in views:
+                pred = render_frame(self.model, m, view.time, view.camera)
+                target, valid = self.scene.target(view)
+                if m == "rgb":
+                    scores.append(float(psnr(pred.clamp(0, 1), target)))
+                else:
+                    scores.append(float(psnr(pred[..., 0].clamp(0, 1), target, mask=valid)))
+            if scores:
+                out[m] = sum(scores) / len(scores)
+        return out
+
+    def _auto_budget(self, scores: dict[str, float]) -> None:
+        if not self.cfg.densify.auto_stop or not self.strategy.growing or not scores:
+            return
+        score = sum(scores.values()) / len(scores)
+        if score > self.best_holdout + self.cfg.densify.auto_min_gain_db:
+            self.best_holdout, self.rounds_without_gain = score, 0
+            return
+        self.rounds_without_gain += 1
+        if self.rounds_without_gain >= self.cfg.densify.auto_patience:
+            self.strategy.growing = False
+            self.log(f"automatic budget: held-out PSNR stopped improving at {self.model.num_gaussians} "
+                     f"Gaussians; no more densification")
+
+    def counts(self) -> dict[str, int]:
+        g = self.model.gaussians
+        if "route_logits" in g:
+            return routing.role_counts(g["route_logits"].detach())
+        return {"shared" if len(self.cfg.model.modalities) > 1 else self.cfg.model.modalities[0]: self.model.num_gaussians}
+
+    # ------------------------------------------------------------------ loop
+    def train(self, on_eval=None) -> list[dict]:
+        """Run to the end of the budget with a progress line, periodic evaluation and checkpoints."""
+        total = f"{self.cfg.minutes:g} min" if self.cfg.minutes else f"{self.cfg.iterations} it"
+        self.log(f"training {self.cfg.method}: {self.model.num_gaussians} Gaussians, "
+                 f"{len(self.scene.times)} time steps, budget {total}, scene extent {self.extent:.3f}")
+        window: list[float] = []
+        last = {}
+        while not self.done():
+            t0 = time.perf_counter()
+            stats = self.step()
+            window = (window + [time.perf_counter() - t0])[-50:]
+            last.update({k: v for k, v in stats.items() if k.startswith("loss_")})
+            it = self.iteration
+            if it % self.cfg.eval_every == 0 or self.done():
+                scores = self.holdout_psnr()
+                self._auto_budget(scores)
+                record = {"iteration": it, "elapsed_s": round(self.elapsed, 3), "progress": self.progress(),
+                          "gaussians": self.model.num_gaussians, "roles": self.counts(),
+                          **{f"psnr_{m}": round(v, 3) for m, v in scores.items()},
+                          **{k: round(v, 6) for k, v in last.items()}}
+                self.history.append(record)
+                if on_eval:
+                    on_eval(self, record)
+            if it % self.cfg.log_every == 0 or self.done():
+                self._print_progress(last, 1.0 / (sum(window) / len(window)))
+            if self.out_dir and (it % self.cfg.checkpoint_every == 0 or self.done()):
+                self.save_checkpoint(self.out_dir / "checkpoints" / "latest.pt")
+        sys.stderr.write("\n")
+        return self.history
+
+    def _print_progress(self, losses: dict, its: float) -> None:
+        p = self.progress()
+        psnrs = self.history[-1] if self.history else {}
+        ps = " ".join(f"{m} {psnrs[f'psnr_{m}']:.2f}" for m in self.cfg.model.modalities if f"psnr_{m}" in psnrs)
+        ls = " ".join(f"{k[5:]} {v:.4f}" for k, v in losses.items())
+        roles = " ".join(f"{k} {v}" for k, v in self.counts().items())
+        if self.cfg.minutes:
+            eta = max(60 * self.cfg.minutes - self.elapsed, 0)
+        else:
+            eta = (self.cfg.iterations - self.iteration) / max(its, 1e-9)
+        line = (f"\r[{'#' * int(20 * p):<20}] {100 * p:5.1f}% it {self.iteration} | {its:5.1f} it/s | "
+                f"loss {ls} | PSNR(held-out) {ps or '-'} | Gaussians {roles} | ETA {int(eta) // 60}:{int(eta) % 60:02d}")
+        end = "" if sys.stderr.isatty() else "\n"
+        sys.stderr.write(line + end)
+        sys.stderr.flush()
+
+    # ------------------------------------------------------------------ checkpoints
+    def save_checkpoint(self, path: Path) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        state = {
+            "config": config_to_dict(self.cfg), "model": self.model.state_for_checkpoint(),
+            "optimizer": self.optimizer.state_dict(), "iteration": self.iteration, "elapsed": self.elapsed,
+            "history": self.history, "generator": self.gen.get_state(), "torch_rng": torch.get_rng_state(),
+            "strategy": {"grad": self.strategy.stats.grad, "count": self.strategy.stats.count,
+                         "growing": self.strategy.growing},
+            "auto": {"best": self.best_holdout, "rounds": self.rounds_without_gain},
+            "neighbours": self.smoothness.state(),
+            "extent": self.extent,
+        }
+        tmp = path.with_suffix(".tmp")
+        torch.save(state, tmp)
+        tmp.replace(path)   # atomic: a crash never leaves a torn checkpoint
+
+    @classmethod
+    def resume(cls, path: Path, scene: Scene, out_dir: Path | None = None, log=None,
+               **overrides) -> "Trainer":
+        state = torch.load(path, weights_only=False)
+        cfg = config_from_dict(state["config"])
+        for k, v in overrides.items():
+            setattr(cfg, k, v)
+        model = DTGModel.from_checkpoint(cfg.model, state["model"])
+        trainer = cls(cfg, scene, out_dir, model=model, log=log)
+        trainer.optimizer.load_state_dict(state["optimizer"])
+        trainer.iteration, trainer.elapsed = state["iteration"], state["elapsed"]
+        trainer.history = state["history"]
+        trainer.gen.set_state(state["generator"])
+        torch.set_rng_state(state["torch_rng"])
+        trainer.strategy.stats.grad = state["strategy"]["grad"]
+        trainer.strategy.stats.count = state["strategy"]["count"]
+        trainer.strategy.growing = state["strategy"]["growing"]
+        trainer.best_holdout, trainer.rounds_without_gain = state["auto"]["best"], state["auto"]["rounds"]
+        trainer.smoothness.load_state(state["neighbours"])
+        trainer.extent = state["extent"]
+        trainer.strategy.extent = state["extent"]
+        return trainer

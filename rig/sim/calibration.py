@@ -1,0 +1,129 @@
+"""A heated checkerboard calibration target seen by the simulated rig (for `rig calibrate`).
+
+The board (9 x 7 squares of 1.6 cm, a 2 cm white margin, 6 mm thick) stands on a post at the
+table-top scene's centre, facing the rigs' average viewpoint (35 degrees up, azimuth 0). Under a
+heat lamp its black squares absorb more: in thermal they are warmer (45 C) than the white ones
+(28 C), with edges softened by lateral conduction (1.5 mm). The rigs move as in the table-top
+world, so a sequence gives the varied views a stereo calibration needs.
+
+    world = make_calibration_world(seed=0)
+    corners = world.scene.inner_corners_world()   # (48, 3) ground truth for detections
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from rig.sim.raycast import Instance
+from rig.sim.rig_config import RigConfig
+from rig.sim.shapes import Box
+from rig.sim.tabletop import AMBIENT_K, C0, ROOM_CENTER, ROOM_HALF, VariantSettings
+from rig.sim.textures import Texture, plain_texture
+from rig.sim.trajectory import TARGET
+from rig.sim.world import World
+
+PX_PER_SQUARE = 64
+
+
+@dataclass(frozen=True)
+class CheckerboardTarget:
+    squares: tuple[int, int] = (9, 7)   # along the board's x and y; inner corners (8, 6)
+    square_m: float = 0.016
+    margin_m: float = 0.02
+    thickness_m: float = 0.006
+    hot_k: float = C0 + 45.0            # black squares
+    cold_k: float = C0 + 28.0           # white squares and margin
+    blur_m: float = 0.0015              # lateral heat conduction in the board
+
+    @property
+    def size_m(self) -> tuple[float, float]:
+        return (self.squares[0] * self.square_m + 2 * self.margin_m,
+                self.squares[1] * self.square_m + 2 * self.margin_m)
+
+    @property
+    def pattern_size(self) -> tuple[int, int]:
+        """Inner corners (columns, rows): what cv2.findChessboardCorners takes."""
+        return self.squares[0] - 1, self.squares[1] - 1
+
+    def inner_corners_local(self) -> np.ndarray:
+        """(N, 3) inner corners on the front face, row by row, board frame (centre origin)."""
+        w, h = self.size_m
+        i, j = np.meshgrid(np.arange(1, self.squares[0]), np.arange(1, self.squares[1]))
+        x = -w / 2 + self.margin_m + i.ravel() * self.square_m
+        y = -h / 2 + self.margin_m + j.ravel() * self.square_m
+        return np.stack([x, y, np.full_like(x, self.thickness_m / 2)], axis=1)
+
+    def face_textures(self) -> tuple[Texture, Texture]:
+        """Albedo (H, W, 3) and kelvin (H, W, 1) of the front face; texel (0, 0) at its corner."""
+        texel = self.square_m / PX_PER_SQUARE
+        w, h = (int(round(s / texel)) for s in self.size_m)
+        x = (np.arange(w) + 0.5) * texel - self.margin_m
+        y = (np.arange(h) + 0.5) * texel - self.margin_m
+        ci, cj = np.floor(x / self.square_m)[None, :], np.floor(y / self.square_m)[:, None]
+        inside = (ci >= 0) & (ci < self.squares[0]) & (cj >= 0) & (cj < self.squares[1])
+        black = (inside & ((ci + cj) % 2 == 0)).astype(np.float32)
+        albedo = np.repeat((0.85 - 0.82 * black)[..., None], 3, axis=2)
+        warm = cv2.GaussianBlur(black, (0, 0), self.blur_m / texel)
+        kelvin = self.cold_k + (self.hot_k - self.cold_k) * warm
+        return Texture(albedo, texel), Texture(kelvin[..., None].astype(np.float32), texel)
+
+
+def _facing_rotation(elevation_deg: float = 35.0) -> np.ndarray:
+    """Board frame -> world: x along world x, z (the face normal) towards the rigs."""
+    el = np.radians(elevation_deg)
+    z = np.array([0.0, -np.cos(el), np.sin(el)])
+    x = np.array([1.0, 0.0, 0.0])
+    return np.stack([x, np.cross(z, x), z], axis=1)
+
+
+@dataclass
+class CalibrationScene:
+    """A static scene: the room and the heated checkerboard (duck-types TableTopScene)."""
+
+    target: CheckerboardTarget
+    room: Texture
+    settings: VariantSettings = field(default_factory=VariantSettings)
+    rotation: np.ndarray = field(default_factory=_facing_rotation)
+    position: np.ndarray = field(default_factory=lambda: TARGET.copy())
+
+    def inner_corners_world(self) -> np.ndarray:
+        """(N, 3) world positions of the inner corners, in cv2 row-by-row order."""
+        return self.target.inner_corners_local() @ self.rotation.T + self.position
+
+    def instances(self, t: float) -> list[Instance]:
+        target, half = self.target, (*(s / 2 for s in self.target.size_m), self.target.thickness_m / 2)
+        albedo, kelvin = target.face_textures()
+        room, board = Box(ROOM_HALF, inside=True), Box(half)
+        grey = np.float32(0.3)
+
+        def face_uv(p):
+            return p[:, :2] + np.array(half[:2])
+
+        def board_albedo(p, n):
+            out = np.full((len(p), 3), grey, np.float32)
+            front = n[:, 2] > 0.5
+            out[front] = albedo.sample(face_uv(p[front]))
+            return out
+
+        def board_temperature(p):
+            out = np.full(len(p), AMBIENT_K + 3.0, np.float32)
+            front = p[:, 2] > half[2] - 1e-5
+            out[front] = kelvin.sample(face_uv(p[front]))[:, 0]
+            return out
+
+        return [Instance("room", room, np.eye(3), ROOM_CENTER,
+                         lambda p, n: self.room.sample(room.uv(p, n)),
+                         lambda p: np.full(len(p), AMBIENT_K, np.float32)),
+                Instance("checkerboard", board, self.rotation, self.position, board_albedo,
+                         board_temperature)]
+
+
+def make_calibration_world(seed: int = 0, target: CheckerboardTarget | None = None,
+                           rig_config: RigConfig | None = None) -> World:
+    """The rigs of the table-top world looking at a heated checkerboard instead of the table."""
+    rng = np.random.default_rng([seed, 0xCA11B])
+    scene = CalibrationScene(target or CheckerboardTarget(),
+                             plain_texture(rng, (0.55, 0.52, 0.48), contrast=0.25))
+    return World("default", seed, rig_config, scene=scene)

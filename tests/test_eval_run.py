@@ -1,0 +1,78 @@
+"""`recon eval`: renders compared with a simulated dataset's ground truth."""
+import json
+import math
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from recon.cli import main as recon_main
+from recon.data import load_dataset
+from recon.data.simulate import SimulateConfig, simulate_dataset
+from recon.eval import RenderError, evaluate_run, write_render
+from recon.eval.renders import render_path
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ds")
+    simulate_dataset(out, SimulateConfig(frames=2, width=40, height=30, seed=2, points=100))
+    return out
+
+
+def _copy_gt(ds, run, offset_counts=0):
+    for f in ds.split("rgb", "test") + ds.split("thermal", "test"):
+        target = render_path(run, f)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if f.modality == "thermal" and offset_counts:
+            write_render(run, f, (ds.read_raw(f).astype(np.float64) + offset_counts) * ds.thermal_scale_k,
+                         ds.thermal_scale_k)
+        else:
+            shutil.copy(ds.path(f), target)
+
+
+def test_ground_truth_as_render_is_perfect(dataset, tmp_path, monkeypatch):
+    monkeypatch.setenv("THERMAL4D_LPIPS_WEIGHTS", str(tmp_path / "absent.ckpt"))
+    ds = load_dataset(dataset)
+    _copy_gt(ds, tmp_path)
+    result = evaluate_run(tmp_path, dataset)
+    assert result["mean"]["rgb"]["frames"] == 2 and result["mean"]["thermal"]["frames"] == 2
+    for modality in ("rgb", "thermal"):
+        assert math.isinf(result["mean"][modality]["psnr"])
+        assert result["mean"][modality]["ssim"] == pytest.approx(1.0, abs=1e-6)
+        assert "lpips" not in result["mean"][modality]  # weights absent: omitted ...
+    assert result["conventions"]["lpips"].startswith("omitted")  # ... and said so
+    assert result["mean"]["thermal"]["mae_k"] == 0.0
+    assert {r["camera"] for r in result["per_frame"]} == {"cam1"}
+
+
+def test_one_kelvin_offset_and_cli_outputs(dataset, tmp_path):
+    ds = load_dataset(dataset)
+    _copy_gt(ds, tmp_path, offset_counts=round(1.0 / ds.thermal_scale_k))
+    assert recon_main(["eval", str(tmp_path), str(dataset), "--no-lpips"]) == 0
+    text = (tmp_path / "eval" / "metrics.json").read_text()
+    result = json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard JSON {c}"))
+    thermal = result["mean"]["thermal"]
+    assert thermal["mae_k"] == pytest.approx(1.0, abs=1e-3)
+    span = ds.thermal_range_k[1] - ds.thermal_range_k[0]
+    assert thermal["psnr"] == pytest.approx(20 * math.log10(span / 1.0), abs=0.05)
+    assert result["mean"]["rgb"]["psnr"] == "inf"
+    md = (tmp_path / "eval" / "metrics.md").read_text()
+    assert "| thermal | 2 |" in md and "1.000" in md and "disabled" in md
+
+
+def test_missing_and_mismatched_renders_are_named(dataset, tmp_path, capsys):
+    ds = load_dataset(dataset)
+    _copy_gt(ds, tmp_path)
+    victim = ds.split("thermal", "test")[0]
+    render_path(tmp_path, victim).unlink()
+    with pytest.raises(RenderError, match=victim.file_path):
+        evaluate_run(tmp_path, dataset)
+    assert recon_main(["eval", str(tmp_path), str(dataset)]) == 2
+    assert "renders missing" in capsys.readouterr().err
+    cv2.imwrite(str(render_path(tmp_path, victim)), np.full((10, 10), 30000, np.uint16))
+    with pytest.raises(RenderError, match="10x10"):
+        evaluate_run(tmp_path, dataset)
+    with pytest.raises(RenderError, match="10x10"):
+        write_render(tmp_path, victim, np.full((10, 10), 300.0), ds.thermal_scale_k)
