@@ -10,11 +10,16 @@ TOL = 1e-4
 
 
 def _near_plane_scene() -> Gaussians:
-    """Gaussians behind the camera, straddling the near plane (z = 0.5) and just in front."""
+    """Gaussians behind the camera, straddling the near plane (z = 0.5) and just in front.
+
+    Seeded: a random scene can put some pixel's alpha within float32 rounding of the 1/255
+    cut-off (seen: 3e-7 relative), where float32 and the float64 reference rightly disagree."""
     g = random_gaussians(60, 3, seed=50, scale_range=(0.05, 0.6))
+    gen = torch.Generator().manual_seed(0)
     cam_z = torch.tensor([0.4, -0.3, -4.0])  # default_camera's position; it looks along ~+z
     offsets = torch.linspace(-1.0, 1.5, 60)
-    g.means = cam_z + torch.stack([0.3 * torch.randn(60), 0.3 * torch.randn(60), offsets], 1)
+    xy = 0.3 * torch.randn(60, 2, generator=gen)
+    g.means = cam_z + torch.cat([xy, offsets[:, None]], 1)
     return g
 
 
@@ -25,8 +30,10 @@ def test_gaussians_behind_or_crossing_near_plane():
     grad_errors = gradient_errors(g, default_camera(), near_plane=0.5)
     assert max(grad_errors.values()) <= 1e-3, grad_errors
     out = rasterization(*g.tensors(), *default_camera().args(), near_plane=0.5)
-    behind = g.means[:, 2] < -4.0 + 0.45  # camera z well below the near plane
-    assert not out.visible[behind].any()
+    view = default_camera().viewmat
+    camera_z = g.means @ view[2, :3] + view[2, 3]
+    assert (camera_z < 0).any() and ((camera_z > 0) & (camera_z < 0.5)).any()
+    assert not out.visible[camera_z < 0.5].any()
 
 
 def test_fully_off_screen_renders_background_with_zero_gradients():
@@ -157,3 +164,19 @@ def test_bad_camera_and_options_raise_value_error(override, match):
     kwargs.update(override)
     with pytest.raises(ValueError, match=match):
         rasterization(**kwargs)
+
+
+def test_thread_count_does_not_change_the_result():
+    """Tiles are composited by one thread each, so the image is bitwise identical; gradients are
+    summed from per-thread buffers, so they agree to float rounding."""
+    g = random_gaussians(300, 3, seed=59)
+    results = []
+    for threads in (1, 2, 3):
+        params = g.to(torch.float32).requires_grad_()
+        out = rasterization(*params.tensors(), *default_camera().args(), threads=threads)
+        (out.image.sum() + out.depth.sum()).backward()
+        results.append((out.image.detach(), [t.grad for t in params.tensors()]))
+    for image, grads in results[1:]:
+        assert torch.equal(image, results[0][0])
+        for a, b in zip(grads, results[0][1]):
+            assert torch.allclose(a, b, rtol=1e-4, atol=1e-5)
