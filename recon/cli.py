@@ -12,6 +12,7 @@ import sys
 
 COMMANDS = [
     "recon.data.cli",
+    "recon.prepare.cli",
     "recon.eval.cli",
     "recon.splat.cli",
     "recon.run",

@@ -29,6 +29,7 @@ from rig.drivers.syncbox import SyncBoxError
 from rig.drivers.gige.stream import Frame, StreamConfig
 from rig.drivers.phone import PHOTO_SUFFIXES, DropFolder, probe_video
 from rig.session import SessionWriter, open_session
+from rig.sim.tabletop import VARIANTS
 from rig.sync import change_energy, synchronise_session, thumbnail
 
 log = logging.getLogger(__name__)
@@ -50,7 +51,10 @@ class CaptureConfig:
     sim_phone_offset_s: float = 0.137       # simulated phone clock error ...
     sim_phone_drift_ppm: float = 50.0       # ... and drift, for sync to recover
     sim_lamp: bool = True                   # simulated rig: a sync-box lamp in view of both cameras
-    sim_scene: str = "world"                # "world" (rig.sim) or "synthetic"
+    sim_scene: str = "world"                # "world" (rig.sim), "calibration" (its checkerboard), "synthetic"
+    sim_variant: str = "default"            # rig.sim variant of the "world" scene
+    sim_keyframe_hz: float = 5.0            # world scenes: keyframes per second, blended in between
+    sim_render_scale: float = 0.2           # world scenes: keyframes rendered at this size, upscaled
     seed: int = 0
     sync_every_s: float = 5.0
     progress: bool = True
@@ -104,12 +108,13 @@ class Capture:
         elif self.simulated:
             from rig.simulated import Lamp, SimClock, SimThermalCamera, default_scene
             self.lamp = Lamp() if cfg.sim_lamp else None
-            self.scene = default_scene(cfg.seed, lamp=self.lamp, world=cfg.sim_scene == "world")
+            self.scene = default_scene(cfg.seed, lamp=self.lamp, kind=cfg.sim_scene, variant=cfg.sim_variant,
+                                       key_hz=cfg.sim_keyframe_hz, render_scale=cfg.sim_render_scale)
             if hasattr(self.scene, "prerender"):
                 if cfg.progress:
                     print(f"rendering the simulated world ({self.scene.n_keys} keyframes per camera)...",
                           file=sys.stderr, flush=True)
-                self.scene.prerender({"thermal": (640, 480), "rgb": (640, 480)})
+                self.scene.prerender({"thermal": (640, 480), "rgb": (640, 480)}, until_s=cfg.duration_s + 1)
             now = time.monotonic()
             self.sim_camera = SimThermalCamera(self.scene, ir_format=cfg.ir_format, scene_t0=now,
                                                clock=SimClock(5000.0, 20.0, now), seed=cfg.seed)
@@ -369,8 +374,14 @@ def register(sub) -> None:
     p.add_argument("--packet-size", type=int, default=1500, help="GVSP packet size (SCPS), bytes")
     p.add_argument("--settle", type=float, default=1.0, help="seconds a dropped file must stay unchanged")
     p.add_argument("--seed", type=int, default=0, help="simulated rig: scene seed")
-    p.add_argument("--sim-scene", choices=["world", "synthetic"], default="world",
-                   help="simulated rig: the project's simulated world, or cheap synthetic warm blobs")
+    p.add_argument("--sim-scene", choices=["world", "calibration", "synthetic"], default="world",
+                   help="simulated rig: the project's simulated world, its heated checkerboard (for "
+                        "rig calibrate), or cheap synthetic warm blobs")
+    p.add_argument("--sim-variant", default="default", choices=VARIANTS, help="simulated world: variant")
+    p.add_argument("--sim-keyframes", type=float, default=5.0, metavar="HZ",
+                   help="simulated world: keyframes per second (blended between; 30 for sharp moving views)")
+    p.add_argument("--sim-render-scale", type=float, default=0.2, metavar="S",
+                   help="simulated world: keyframes rendered at S x 640x480 and upscaled")
     p.add_argument("--no-sim-lamp", action="store_true",
                    help="simulated rig without its sync-box lamp: sync falls back to cross-correlation")
     p.add_argument("--quiet", action="store_true", help="no progress line")
@@ -384,7 +395,8 @@ def main(args) -> int:
     cfg = CaptureConfig(duration_s=args.duration, out=args.out, camera=args.camera,
                         phone_drop=args.phone_drop, syncbox=args.syncbox, ir_format=args.ir_format,
                         packet_size=args.packet_size, settle_s=args.settle, seed=args.seed,
-                        sim_lamp=not args.no_sim_lamp, sim_scene=args.sim_scene,
+                        sim_lamp=not args.no_sim_lamp, sim_scene=args.sim_scene, sim_variant=args.sim_variant,
+                        sim_keyframe_hz=args.sim_keyframes, sim_render_scale=args.sim_render_scale,
                         progress=not args.quiet)
     try:
         cap = Capture(cfg)

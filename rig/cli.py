@@ -14,6 +14,7 @@ COMMANDS = [
     "rig.capture",
     "rig.devices",
     "rig.info",
+    "rig.calibrate",
 ]
 
 

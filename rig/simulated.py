@@ -10,8 +10,11 @@ code recover the offset. An optional lamp (the sync box's) is drawn in a corner 
 
 Scenes: `WorldScene` (the default) renders the project's simulated world (`rig.sim`) at 1/5
 size, 5 keyframes per second of its script, once, and blends and upscales them, because
-full-size rendering at 30 Hz live is far too slow on the appliance's CPU. `SyntheticScene`
-(seeded 2-D warm objects, cheap) serves tests and `--sim-scene synthetic`.
+full-size rendering at 30 Hz live is far too slow on the appliance's CPU (finer keyframes and
+scale are options: blending keyframes far apart ghosts moving views, which pose recovery
+cannot be graded on). `describe()` is the scene's ground truth (world, rig calibration, lamp
+box) that the phone writes into the session with each file. `SyntheticScene` (seeded 2-D warm
+objects, cheap) serves tests and `--sim-scene synthetic`.
 """
 from __future__ import annotations
 
@@ -22,7 +25,7 @@ import os
 import queue
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from fractions import Fraction
 from pathlib import Path
 from typing import Callable
@@ -132,10 +135,21 @@ class WorldScene:
     rendered at `render_scale` of the asked size, `key_hz` per second of the world's script
     (which ping-pongs over `duration_s`, so they are reused), blended linearly and upscaled."""
 
-    def __init__(self, world, key_hz: float = 5.0, render_scale: float = 0.2, lamp: Lamp | None = None):
-        self.world, self.key_hz, self.scale, self.lamp = world, key_hz, render_scale, lamp
+    def __init__(self, world, key_hz: float = 5.0, render_scale: float = 0.2, lamp: Lamp | None = None,
+                 kind: str = "world"):
+        self.world, self.key_hz, self.scale, self.lamp, self.kind = world, key_hz, render_scale, lamp, kind
         self.n_keys = int(round(world.duration_s * key_hz)) + 1
         self._cache: dict[tuple, np.ndarray] = {}
+
+    def describe(self) -> dict:
+        """Ground truth for grading a session: which world, how it was rendered, rig 0's true
+        calibration (intrinsics at the reference size, `thermal_from_rgb`) and the lamp box."""
+        rc = self.world.rig_config
+        return {"kind": self.kind, "variant": self.world.variant, "seed": self.world.seed, "rig": 0,
+                "key_hz": self.key_hz, "render_scale": self.scale,
+                "rgb_intrinsics": asdict(rc.rgb), "thermal_intrinsics": asdict(rc.thermal),
+                "thermal_from_rgb": rc.thermal_from_rgb.tolist(),
+                "lamp_box": list(LAMP_BOX) if self.lamp is not None else None}
 
     def _render(self, kind: str, k: int, w: int, h: int) -> np.ndarray:
         key = (kind, k, w, h)
@@ -153,10 +167,12 @@ class WorldScene:
             self._cache[key] = np.asarray(img, np.float32)
         return self._cache[key]
 
-    def prerender(self, sizes: dict[str, tuple[int, int]]) -> None:
-        """Render every keyframe now (for live capture). sizes: kind -> (w, h)."""
+    def prerender(self, sizes: dict[str, tuple[int, int]], until_s: float | None = None) -> None:
+        """Render the keyframes of scene times up to `until_s` (default: all) now, for live
+        capture. sizes: kind -> (w, h)."""
+        last = self.n_keys - 1 if until_s is None else min(self.n_keys - 1, int(until_s * self.key_hz) + 2)
         for kind, (w, h) in sizes.items():
-            for k in range(self.n_keys):
+            for k in range(last + 1):
                 self._render(kind, k, w, h)
 
     def _blend(self, kind: str, t: float, w: int, h: int) -> np.ndarray:
@@ -194,13 +210,20 @@ class ScaledScene:
         return cv2.resize(img, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
-def default_scene(seed: int = 0, lamp: Lamp | None = None, world: bool = True):
-    """The project's simulated world (`rig.sim`), or with world=False the synthetic scene
-    rendered at quarter size."""
-    if not world:
+SCENE_KINDS = ("world", "calibration", "synthetic")
+
+
+def default_scene(seed: int = 0, lamp: Lamp | None = None, kind: str = "world", variant: str = "default",
+                  key_hz: float = 5.0, render_scale: float = 0.2):
+    """The project's simulated world (`rig.sim`) of `variant`, its heated checkerboard
+    (kind "calibration", for `rig calibrate`), or the synthetic scene rendered at quarter size."""
+    if kind == "synthetic":
         return ScaledScene(SyntheticScene(seed, lamp=lamp))
-    from rig.sim import make_world
-    return WorldScene(make_world("default", seed=seed), lamp=lamp)
+    from rig.sim import make_calibration_world, make_world
+    if kind not in SCENE_KINDS:
+        raise ValueError(f"unknown simulated scene {kind!r}; choose one of {', '.join(SCENE_KINDS)}")
+    world = make_calibration_world(seed) if kind == "calibration" else make_world(variant, seed=seed)
+    return WorldScene(world, key_hz=key_hz, render_scale=render_scale, lamp=lamp, kind=kind)
 
 
 @dataclass
@@ -347,7 +370,10 @@ class SimPhone:
         os.replace(tmp, final)
         self.truth.append({"file": name, "true_start_host_s": start,
                            "nominal_start_host_s": int(start_phone) - self.realtime_minus_monotonic,
-                           "clock_offset_s": self.clock_offset_s, "drift_ppm": self.drift_ppm})
+                           "clock_offset_s": self.clock_offset_s, "drift_ppm": self.drift_ppm,
+                           # frame k is at host start + pts_k / (1 + drift); scene time = host - t0
+                           "scene_t0_host_s": self.scene_t0,
+                           "scene": self.scene.describe() if hasattr(self.scene, "describe") else None})
         return final
 
     def run(self, stop: threading.Event, first_index: int = 1, gap_s: float = 0.3) -> None:

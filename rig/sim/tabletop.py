@@ -27,7 +27,7 @@ DURATION_S = 10.0
 C0 = 273.15
 AMBIENT_K = C0 + 22.0
 
-VARIANTS = ("default", "dark", "fast", "occlusion", "flat-thermal", "rapid")
+VARIANTS = ("default", "dark", "fast", "occlusion", "flat-thermal", "rapid", "target")
 
 
 @dataclass(frozen=True)
@@ -42,6 +42,7 @@ class VariantSettings:
     occluder: bool = False         # an arm reaching across the table at 2.5-7.5 s
     thermal_contrast: float = 1.0  # temperatures pulled towards ambient (flat-thermal)
     rapid: bool = False            # heater toggled and water poured in bursts: step changes
+    printed_target: bool = False   # the calibration checkerboard printed on paper, lying on the table
 
 
 VARIANT_SETTINGS = {
@@ -51,6 +52,7 @@ VARIANT_SETTINGS = {
     "occlusion": VariantSettings(occluder=True),
     "flat-thermal": VariantSettings(thermal_contrast=0.03),
     "rapid": VariantSettings(rapid=True),
+    "target": VariantSettings(printed_target=True),
 }
 
 # Positions on the table (x, y) in metres.
@@ -64,6 +66,7 @@ POURS_DEFAULT = ((1.5, 4.0),)
 POURS_RAPID = ((1.0, 1.4), (3.0, 3.3), (5.5, 6.0), (8.0, 8.4))
 PLATE_LEVELS_RAPID_C = (100.0, 40.0, 110.0, 35.0, 95.0)  # a new setpoint every 2 s
 TABLE_HALF = (0.6, 0.4, 0.015)
+TARGET_XY, TARGET_YAW = np.array([-0.075, 0.21]), 0.0   # printed checkerboard ("target" variant)
 ROOM_HALF, ROOM_CENTER = (2.5, 2.5, 1.4), np.array([0.0, 0.0, 0.65])
 
 
@@ -195,7 +198,27 @@ class TableTopScene:
         tip = self.arm_tip_x(t)
         if tip is not None:
             out.append(self._arm(t, tip))
+        if self.settings.printed_target:
+            out.append(self._printed_target())
         return out
+
+    def _printed_target(self) -> Instance:
+        """The `rig calibrate` checkerboard printed on paper (0.5 mm), lying behind the objects:
+        a known size in view, for the metric scale of SfM. Paper at the table's temperature."""
+        from rig.sim.calibration import CheckerboardTarget   # calibration builds on this module
+        target = CheckerboardTarget(thickness_m=0.0005)
+        albedo, _ = target.face_textures()
+        half = (*(s / 2 for s in target.size_m), target.thickness_m / 2)
+        shape = Box(half)
+
+        def face(p, n):
+            out = np.full((len(p), 3), 0.85, np.float32)
+            top = n[:, 2] > 0.5
+            out[top] = albedo.sample(p[top, :2] + np.array(half[:2]))
+            return out
+
+        return Instance("printed target", shape, rotation("z", TARGET_YAW), np.array([*TARGET_XY, half[2]]),
+                        face, lambda p: np.full(len(p), AMBIENT_K - 0.3, np.float32))
 
     def _table(self, t, plate_k, water_k, ice_p, ball_p) -> Instance:
         tex, half = self.textures["table"], TABLE_HALF

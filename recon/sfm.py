@@ -1,0 +1,264 @@
+"""Structure from motion on RGB frames with pycolmap 4.2.1 (SIFT, matching, incremental mapping).
+
+    result = run_sfm(image_dir, names, work_dir, SfmOptions(matching="sequential"))
+    result.c2w["000012.png"]       # (4, 4) camera-to-world, OpenCV axes, SfM units
+    result.cameras["000012.png"]   # rig.calibrate.Lens: fx fy cx cy k1 k2 p1 p2
+    result.points_xyz, result.points_rgb, result.stats
+
+Matching for video ("sequential"): every frame with the next `overlap` frames and with frames
+2, 4, 8, ... ahead (COLMAP's quadratic overlap), plus loop-closure pairs: every `loop_every`-th
+frame with every other one of those keyframes, so a camera that returns to a place it saw
+before is tied to it without a vocabulary tree (COLMAP's loop detection needs a vocabulary file
+that would have to be downloaded). "exhaustive" matches all pairs (unordered photo sets).
+
+Pixel convention: COLMAP puts pixel centres at +0.5, as the prepared-dataset format does, so
+principal points carry over unchanged. glog's INFO/WARNING lines are silenced while we run.
+
+Failures raise `SfmError` with what was measured (features per image, verified pairs, inlier
+matches) and what to recapture.
+"""
+from __future__ import annotations
+
+import contextlib
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rig.calibrate import Lens
+
+MIN_FEATURES = 200          # median SIFT features per image below which images lack texture/light
+MIN_INLIERS = 30            # median inlier matches of verified pairs below which matching is weak
+
+
+class SfmError(RuntimeError):
+    """Pose recovery failed; the message says what was measured and what to recapture."""
+
+    def __init__(self, message: str, stats: dict | None = None):
+        super().__init__(message)
+        self.stats = stats or {}
+
+
+@dataclass
+class SfmOptions:
+    matching: str = "sequential"        # "sequential" (video) or "exhaustive" (photo sets)
+    overlap: int = 8                    # sequential: neighbours matched with each frame
+    loop_every: int = 6                 # sequential: keyframe stride of loop-closure pairs (0: none)
+    max_image_size: int = 1600
+    max_features: int = 8192
+    camera_model: str = "SIMPLE_RADIAL"  # COLMAP model of the RGB camera
+    camera_params: str = ""             # initial params in COLMAP order (e.g. from rig calibration)
+    single_camera: bool = True          # one camera for all frames (one phone, one zoom)
+    refine_intrinsics: bool = True      # False: keep camera_params (calibrated) fixed in bundle adjustment
+    mask_dir: Path | None = None        # mask_dir/<image name>.png, black = ignore (sync lamp)
+    min_model_size: int = 3
+    num_threads: int = 2
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.matching not in ("sequential", "exhaustive"):
+            raise ValueError(f"matching must be 'sequential' or 'exhaustive', got {self.matching!r}")
+
+
+@dataclass
+class SfmResult:
+    c2w: dict[str, np.ndarray]          # image name -> (4, 4) float64 camera-to-world, OpenCV axes
+    cameras: dict[str, Lens]            # image name -> intrinsics (OPENCV model)
+    points_xyz: np.ndarray              # (P, 3) float64, SfM units
+    points_rgb: np.ndarray              # (P, 3) uint8
+    points_error: np.ndarray            # (P,) mean reprojection error, px
+    tracks: list[list[str]]             # per point: names of the images that observe it
+    stats: dict = field(default_factory=dict)
+
+
+def camera_from_colmap(cam) -> Lens:
+    """pycolmap.Camera -> Lens (models without distortion terms give zeros)."""
+    p = [float(v) for v in cam.params]
+    name = cam.model.name
+    base = dict(width=int(cam.width), height=int(cam.height))
+    if name == "SIMPLE_PINHOLE":
+        return Lens(**base, fx=p[0], fy=p[0], cx=p[1], cy=p[2])
+    if name == "PINHOLE":
+        return Lens(**base, fx=p[0], fy=p[1], cx=p[2], cy=p[3])
+    if name == "SIMPLE_RADIAL":
+        return Lens(**base, fx=p[0], fy=p[0], cx=p[1], cy=p[2], k1=p[3])
+    if name == "RADIAL":
+        return Lens(**base, fx=p[0], fy=p[0], cx=p[1], cy=p[2], k1=p[3], k2=p[4])
+    if name == "OPENCV":
+        return Lens(**base, fx=p[0], fy=p[1], cx=p[2], cy=p[3], k1=p[4], k2=p[5], p1=p[6], p2=p[7])
+    raise SfmError(f"camera model {name} is not supported (use SIMPLE_RADIAL, RADIAL, PINHOLE or OPENCV)")
+
+
+@contextlib.contextmanager
+def quiet_glog(level: int = 2):
+    """Silence pycolmap's glog below `level` (2 = ERROR) inside the block."""
+    import pycolmap
+    old = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = level
+    try:
+        yield
+    finally:
+        pycolmap.logging.minloglevel = old
+
+
+def sequential_pairs(n: int, overlap: int, loop_every: int) -> list[tuple[int, int]]:
+    """Index pairs (i < j) of ordered frames: `overlap` neighbours, quadratic jumps 2^k, and all
+    pairs of keyframes (every `loop_every`-th frame) for loop closure."""
+    pairs = set()
+    for i in range(n):
+        for k in range(1, overlap + 1):
+            if i + k < n:
+                pairs.add((i, i + k))
+        k = 2
+        while i + k < n:
+            pairs.add((i, i + k))
+            k *= 2
+    if loop_every > 0:
+        keys = list(range(0, n, loop_every))
+        pairs.update((a, b) for ai, a in enumerate(keys) for b in keys[ai + 1:])
+    return sorted(pairs)
+
+
+def database_stats(db_path: Path) -> dict:
+    """Features and matches found, for diagnosis: median features per image, verified pairs,
+    median inliers of verified pairs."""
+    import pycolmap
+    db = pycolmap.Database.open(str(db_path))
+    try:
+        images = db.read_all_images()
+        feats = [db.num_keypoints_for_image(im.image_id) for im in images]
+        pair_ids, geoms = db.read_two_view_geometries()
+        inliers = [len(g.inlier_matches) for g in geoms]
+        return {"images": len(images), "features_median": float(np.median(feats)) if feats else 0.0,
+                "matched_pairs": int(db.num_matched_image_pairs()),
+                "verified_pairs": int(sum(v >= 15 for v in inliers)),
+                "inliers_median": float(np.median([v for v in inliers if v > 0])) if any(inliers) else 0.0}
+    finally:
+        db.close()
+
+
+def diagnose(stats: dict, registered: int, total: int) -> str:
+    """Why a reconstruction failed or is partial, and what to recapture."""
+    measured = (f"median {stats.get('features_median', 0):.0f} SIFT features per image, "
+                f"{stats.get('verified_pairs', 0)} verified pairs for {total} images, median "
+                f"{stats.get('inliers_median', 0):.0f} inlier matches per pair")
+    if stats.get("features_median", 0) < MIN_FEATURES:
+        return (f"too few matches ({measured}; fewer than {MIN_FEATURES} features per image): the frames "
+                f"are too dark, blurred or textureless. Recapture with more light, slower motion and "
+                f"textured static surfaces in view")
+    if stats.get("verified_pairs", 0) < max(1, total - 1) or stats.get("inliers_median", 0) < MIN_INLIERS:
+        return (f"too few matches ({measured}): consecutive frames share too little static texture (fast "
+                f"motion, a view dominated by moving objects, or repetitive texture). Recapture moving "
+                f"slower, with more of the static scene in view")
+    return (f"only {registered}/{total} frames registered although matches were found ({measured}): the "
+            f"view may be dominated by moving objects, or the camera only rotated. Recapture moving "
+            f"sideways around a static scene")
+
+
+def _write_pairs(path: Path, names: list[str], pairs: list[tuple[int, int]]) -> None:
+    path.write_text("".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
+
+
+def run_sfm(image_dir: str | Path, names: list[str], work_dir: str | Path,
+            options: SfmOptions | None = None, progress=None) -> SfmResult:
+    """Recover poses and sparse points of `names` (ordered in time for sequential matching) in
+    `image_dir`; the database and model go to `work_dir` (replaced). Raises SfmError when no
+    model of at least `min_model_size` images can be built."""
+    import pycolmap
+    opt = options or SfmOptions()
+    image_dir, work = Path(image_dir), Path(work_dir)
+    if len(names) < 2:
+        raise SfmError(f"pose recovery needs at least 2 frames, got {len(names)}")
+    if work.exists():
+        shutil.rmtree(work)
+    work.mkdir(parents=True)
+    db, model_dir = work / "database.db", work / "sparse"
+    say = progress or (lambda msg: None)
+    times = {}
+    with quiet_glog():
+        t0 = time.perf_counter()
+        reader = pycolmap.ImageReaderOptions()
+        reader.camera_model = opt.camera_model
+        reader.camera_params = opt.camera_params
+        if opt.mask_dir is not None:
+            reader.mask_path = str(opt.mask_dir)
+        extraction = pycolmap.FeatureExtractionOptions()
+        extraction.num_threads = opt.num_threads
+        extraction.max_image_size = opt.max_image_size
+        extraction.sift.max_num_features = opt.max_features
+        say(f"SIFT features of {len(names)} frames")
+        pycolmap.extract_features(db, image_dir, image_names=list(names),
+                                  camera_mode=pycolmap.CameraMode.SINGLE if opt.single_camera
+                                  else pycolmap.CameraMode.AUTO,
+                                  reader_options=reader, extraction_options=extraction,
+                                  device=pycolmap.Device.cpu)
+        times["extract_s"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        matching = pycolmap.FeatureMatchingOptions()
+        matching.num_threads = opt.num_threads
+        verification = pycolmap.TwoViewGeometryOptions()
+        verification.ransac.random_seed = opt.seed
+        if opt.matching == "exhaustive":
+            n_pairs = len(names) * (len(names) - 1) // 2
+            say(f"matching all {n_pairs} pairs")
+            pycolmap.match_exhaustive(db, matching_options=matching, verification_options=verification,
+                                      device=pycolmap.Device.cpu)
+        else:
+            pairs = sequential_pairs(len(names), opt.overlap, opt.loop_every)
+            n_pairs = len(pairs)
+            _write_pairs(work / "pairs.txt", list(names), pairs)
+            pairing = pycolmap.ImportedPairingOptions()
+            pairing.match_list_path = work / "pairs.txt"
+            say(f"matching {n_pairs} sequential and loop-closure pairs")
+            pycolmap.match_image_pairs(db, matching_options=matching, pairing_options=pairing,
+                                       verification_options=verification, device=pycolmap.Device.cpu)
+        times["match_s"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        mapping = pycolmap.IncrementalPipelineOptions()
+        mapping.num_threads = opt.num_threads
+        mapping.random_seed = opt.seed
+        mapping.min_model_size = opt.min_model_size
+        if not opt.refine_intrinsics:
+            if not opt.camera_params:
+                raise ValueError("refine_intrinsics=False needs camera_params")
+            mapping.ba_refine_focal_length = mapping.ba_refine_extra_params = False
+            mapping.mapper.abs_pose_refine_focal_length = mapping.mapper.abs_pose_refine_extra_params = False
+        model_dir.mkdir()
+        say("incremental mapping")
+        models = pycolmap.incremental_mapping(db, image_dir, model_dir, options=mapping)
+        times["map_s"] = time.perf_counter() - t0
+    stats = database_stats(db)
+    stats.update({k: round(v, 2) for k, v in times.items()}, pairs=n_pairs,
+                 pycolmap_s=round(sum(times.values()), 2), models=len(models))
+    if not models:
+        raise SfmError("no reconstruction: " + diagnose(stats, 0, len(names)), stats)
+    rec = max(models.values(), key=lambda r: r.num_reg_images())
+    return _result(rec, stats, len(names))
+
+
+def _result(rec, stats: dict, total: int) -> SfmResult:
+    c2w, cameras, by_id = {}, {}, {}
+    for image_id in rec.reg_image_ids():
+        img = rec.image(image_id)
+        w2c = np.eye(4)
+        w2c[:3, :4] = img.cam_from_world().matrix()
+        c2w[img.name] = np.linalg.inv(w2c)
+        cameras[img.name] = camera_from_colmap(rec.camera(img.camera_id))
+        by_id[image_id] = img.name
+    xyz, rgb, err, tracks = [], [], [], []
+    for _, p in rec.points3D.items():
+        xyz.append(p.xyz)
+        rgb.append(p.color)
+        err.append(p.error)
+        tracks.append([by_id[el.image_id] for el in p.track.elements])
+    stats = {**stats, "registered": rec.num_reg_images(), "frames": total,
+             "points": rec.num_points3D(),
+             "mean_reprojection_error_px": round(float(rec.compute_mean_reprojection_error()), 4),
+             "mean_track_length": round(float(rec.compute_mean_track_length()), 3)}
+    return SfmResult(c2w, cameras, np.array(xyz, np.float64).reshape(-1, 3),
+                     np.array(rgb, np.uint8).reshape(-1, 3), np.array(err, np.float64), tracks, stats)
+

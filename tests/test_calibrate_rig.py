@@ -1,0 +1,116 @@
+"""`rig calibrate` on the simulator's heated checkerboard against its known calibration; the
+calibration file (round trip, validation, where `recon prepare` finds it); the messages when the
+target is not found."""
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from recon.prepare.poses import rotation_angle_deg
+from rig.calibrate import (CALIBRATION_FILE, CalibrationError, RigCalibration, calibrate, find_calibration,
+                           load_calibration, simulated_calibration)
+from rig.cli import main as rig_main
+from rig.sim import make_calibration_world, make_world
+
+SIZE = (320, 240)
+
+
+def _render_pairs(world, folder: Path, times) -> None:
+    """rgb/NAME.png (phone noise) + thermal/NAME.png (TemperatureLinear10mK counts, NETD noise)."""
+    (folder / "rgb").mkdir(parents=True)
+    (folder / "thermal").mkdir()
+    rc = world.rig_config
+    for i, t in enumerate(times):
+        c2w_rgb, c2w_th = world.rig_pose(0, t)
+        k, kt = rc.rgb.scaled(*SIZE), rc.thermal.scaled(*SIZE)
+        rng = np.random.default_rng(i)
+        rgb = world.render_rgb(c2w_rgb, k.fx, k.fy, k.cx, k.cy, *SIZE, t, rng=rng)
+        kelvin = world.render_temperature(c2w_th, kt.fx, kt.fy, kt.cx, kt.cy, *SIZE, t)
+        cv2.imwrite(str(folder / "rgb" / f"{i:03d}.png"), rgb[..., ::-1])
+        cv2.imwrite(str(folder / "thermal" / f"{i:03d}.png"), world.thermal_counts(kelvin, rng))
+
+
+@pytest.fixture(scope="module")
+def board_pairs(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("board")
+    _render_pairs(make_calibration_world(0), folder, np.linspace(0, 10, 12, endpoint=False))
+    return folder
+
+
+def test_recovers_the_simulated_rig(board_pairs, capsys):
+    assert rig_main(["calibrate", str(board_pairs)]) == 0
+    assert "views" in capsys.readouterr().out
+    cal = load_calibration(board_pairs / CALIBRATION_FILE)
+    truth = make_calibration_world(0).rig_config
+    est_rgb_from_th, true_rgb_from_th = cal.rgb_from_thermal, np.linalg.inv(truth.thermal_from_rgb)
+    assert np.linalg.norm(est_rgb_from_th[:3, 3] - true_rgb_from_th[:3, 3]) < 0.01          # 1 cm
+    assert rotation_angle_deg(est_rgb_from_th[:3, :3].T @ true_rgb_from_th[:3, :3]) < 0.5   # 0.5 deg
+    for lens, true in ((cal.rgb, truth.rgb.scaled(*SIZE)), (cal.thermal, truth.thermal.scaled(*SIZE))):
+        assert (lens.width, lens.height) == SIZE
+        assert lens.fx == pytest.approx(true.fx, rel=0.01) and lens.fy == pytest.approx(true.fy, rel=0.01)
+        assert abs(lens.cx - true.cx) < 2 and abs(lens.cy - true.cy) < 2
+    assert cal.views == 12 and max(cal.rms_px.values()) < 0.5 and cal.method == "checkerboard"
+
+
+def test_target_not_found_says_what_to_recapture(tmp_path):
+    _render_pairs(make_world("default", 0), tmp_path, [0.0, 2.0, 4.0])     # the table, no board
+    with pytest.raises(CalibrationError) as err:
+        calibrate(tmp_path)
+    msg = str(err.value)
+    assert "calibration target not found" in msg and "0 usable of 3" in msg and "Recapture" in msg
+    assert rig_main(["calibrate", str(tmp_path)]) == 2
+    assert not (tmp_path / CALIBRATION_FILE).exists()
+
+
+def test_not_a_source(tmp_path):
+    with pytest.raises(CalibrationError, match="neither a session"):
+        calibrate(tmp_path)
+
+
+def test_calibration_file_round_trip_and_validation(board_pairs, tmp_path):
+    cal = calibrate(board_pairs)
+    path = cal.save(tmp_path / "rig.json")
+    again = load_calibration(path)
+    np.testing.assert_allclose(again.thermal_from_rgb, cal.thermal_from_rgb)
+    assert again.rgb == cal.rgb and again.thermal == cal.thermal
+    bad = json.loads(path.read_text())
+    bad["thermal_from_rgb"][0][0] = 2.0                       # not a rotation
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    with pytest.raises(CalibrationError, match="rigid"):
+        load_calibration(tmp_path / "bad.json")
+    (tmp_path / "other.json").write_text('{"format": "something else"}')
+    with pytest.raises(CalibrationError, match="not a rig calibration"):
+        load_calibration(tmp_path / "other.json")
+
+
+def test_where_prepare_finds_the_calibration(tmp_path, board_pairs):
+    cal = calibrate(board_pairs)
+    sessions = tmp_path / "sessions"
+    session = sessions / "s1"
+    session.mkdir(parents=True)
+    with pytest.raises(CalibrationError, match="rig calibrate"):
+        find_calibration(session)
+    cal.save(sessions / CALIBRATION_FILE)                     # one file for every session of the rig
+    assert find_calibration(session)[1] == str(sessions / CALIBRATION_FILE)
+    cal.save(session / CALIBRATION_FILE)                      # the session's own wins
+    assert find_calibration(session)[1] == str(session / CALIBRATION_FILE)
+    assert find_calibration(session, explicit=sessions / CALIBRATION_FILE)[1] == str(sessions / CALIBRATION_FILE)
+
+
+class _SimulatedSession:
+    """What simulated_calibration reads: closed.json's sim_truth (rig.simulated.WorldScene.describe)."""
+
+    def __init__(self):
+        from rig.simulated import WorldScene
+        self.summary = {"sim_truth": [{"file": "IMG_0001.MOV", "scene": WorldScene(make_world()).describe()}]}
+
+
+def test_simulator_fallback_is_the_true_calibration():
+    cal = simulated_calibration(_SimulatedSession())
+    truth = make_world().rig_config
+    assert isinstance(cal, RigCalibration) and cal.method == "simulator"
+    np.testing.assert_allclose(cal.thermal_from_rgb, truth.thermal_from_rgb)
+    assert cal.thermal.fx == pytest.approx(truth.thermal.fx) and cal.rgb.width == truth.rgb.width
+    assert simulated_calibration(type("S", (), {"summary": {}})()) is None

@@ -1,0 +1,132 @@
+"""`recon prepare` end to end on short simulated-rig sessions: the dataset loads, thermal poses are
+the RGB pose at the thermal frame's time composed with the rig extrinsic, and each way it can
+fail says what was measured and what to recapture."""
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from recon.cli import main as recon_main
+from recon.data import load_dataset
+from recon.prepare import REPORT_FILE, PrepareError, prepare_session
+from recon.prepare.poses import interpolate_pose, pose_errors
+from recon.prepare.simtruth import session_truth
+from rig.calibrate import simulated_calibration
+from rig.capture import Capture, CaptureConfig
+from rig.session import open_session
+
+FAST = dict(frames=12, test_every=4, downscale=2)
+
+
+def _capture(path: Path, **sim) -> Path:
+    Capture(CaptureConfig(duration_s=3.0, out=path, progress=False, **sim)).run()
+    return path
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    return _capture(tmp_path_factory.mktemp("sessions") / "s1")
+
+
+@pytest.fixture(scope="module")
+def prepared(session, tmp_path_factory):
+    out = tmp_path_factory.mktemp("data") / "s1"
+    prepare_session(session, out, progress=None, **FAST)
+    return out
+
+
+def test_dataset_loads_with_thermal_poses_from_the_rig(prepared, session):
+    ds = load_dataset(prepared)
+    rgb, th = ([f for f in ds.frames if f.modality == m] for m in ("rgb", "thermal"))
+    assert len(rgb) == len(th) >= 11 and ds.points_xyz is not None and len(ds.points_xyz) > 100
+    assert ds.split("rgb", "test") and ds.split("thermal", "test")
+    assert all(0 <= f.time <= 1 for f in ds.frames) and max(f.time for f in ds.frames) > 0.9
+    assert rgb[0].width == 320 and th[0].width == 320                      # downscale 2 of 640x480
+    # thermal pose = RGB path interpolated to the thermal frame's time, composed with the extrinsic
+    cal = simulated_calibration(open_session(session))
+    times = np.array([f.timestamp_s for f in rgb])
+    path = np.stack([f.c2w_opencv() for f in rgb])
+    for f in th:
+        expected = interpolate_pose(times, path, f.timestamp_s) @ cal.rgb_from_thermal
+        np.testing.assert_allclose(f.c2w_opencv(), expected, atol=1e-9)
+        assert abs(f.fx - cal.thermal.fx / 2) < 1e-6 and abs(f.fy - cal.thermal.fy / 2) < 1e-6
+    k = ds.image(th[0])
+    h, w = k.shape                                                         # sync lamp box unmeasured
+    assert 280 < np.nanmedian(k) < 320 and np.isnan(k[int(0.05 * h), int(0.05 * w)])
+
+
+def test_recovered_poses_against_the_simulator(prepared, session):
+    """Coarse on this 3 s test session (its keyframes are 0.2 s apart and blended: ghosted
+    views); the figures in the README come from bench/prepare_accuracy.py."""
+    s = open_session(session)
+    truth = session_truth(s)
+    report = json.loads((prepared / REPORT_FILE).read_text())
+    ds = load_dataset(prepared)
+    est = np.stack([f.c2w_opencv() for f in ds.frames if f.modality == "rgb"])
+    gt = np.stack([truth.rgb_pose(s.rgb[e["rgb_record"]]) for e in report["frame_list"]])
+    e = pose_errors(est, gt)
+    assert np.median(e["rotation_deg"]) < 2.0 and np.median(e["position"]) < 0.02
+    assert e["scale"] == pytest.approx(1.0, abs=0.02)                       # metric (simulator scale)
+
+
+def test_report_has_the_numbers(prepared):
+    r = json.loads((prepared / REPORT_FILE).read_text())
+    assert r["status"] == "ok" and r["error"] is None
+    assert r["frames"]["paired"] >= 80 and r["frames"]["selected"] == 12
+    s = r["sfm"]
+    for key in ("registered", "mean_reprojection_error_px", "mean_track_length", "pycolmap_s", "points",
+                "path_jitter_deg_median"):
+        assert key in s
+    assert r["scale"]["method"] == "simulator" and 0.3 < r["scale"]["median_depth_m"] < 1.0
+    assert r["calibration"]["method"] == "simulator" and any("simulator" in n for n in r["notes"])
+    assert len(r["frame_list"]) == s["registered"]
+
+
+def _without_truth(session: Path, dest: Path) -> Path:
+    """The same session as if captured by a real rig: no simulator truth in closed.json."""
+    shutil.copytree(session, dest)
+    closed = json.loads((dest / "closed.json").read_text())
+    closed.pop("sim_truth")
+    (dest / "closed.json").write_text(json.dumps(closed))
+    return dest
+
+
+def test_no_calibration_and_unknown_scale_refuse_with_advice(session, tmp_path, capsys):
+    real = _without_truth(session, tmp_path / "real")
+    assert recon_main(["prepare", str(real), str(tmp_path / "a"), "--frames", "12"]) == 1
+    err = capsys.readouterr().err
+    assert "no rig calibration" in err and "rig calibrate" in err
+    report = json.loads((tmp_path / "a" / REPORT_FILE).read_text())
+    assert report["status"] == "failed" and "no rig calibration" in report["error"]
+    assert not (tmp_path / "a" / "transforms.json").exists()
+
+    cal = simulated_calibration(open_session(session)).save(tmp_path / "rig_calibration.json")
+    with pytest.raises(PrepareError) as exc:
+        prepare_session(real, tmp_path / "b", progress=None, calibration=cal, **FAST)
+    msg = str(exc.value)
+    assert "metric scale unknown" in msg and "checkerboard" in msg and "--scale" in msg
+    assert not (tmp_path / "b" / "transforms.json").exists()
+
+
+def test_a_view_of_moving_things_only_refuses(tmp_path, session):
+    """The synthetic scene: warm blobs drifting over a smooth background, nothing static to match."""
+    moving = _capture(tmp_path / "moving", sim_scene="synthetic")
+    cal = simulated_calibration(open_session(session)).save(tmp_path / "rig_calibration.json")
+    with pytest.raises(PrepareError) as exc:
+        prepare_session(moving, tmp_path / "out", progress=None, calibration=cal, **FAST)
+    msg = str(exc.value)
+    assert "too few matches" in msg and "Recapture" in msg
+    report = json.loads((tmp_path / "out" / REPORT_FILE).read_text())
+    assert report["status"] == "failed" and report["sfm"]["features_median"] >= 0
+
+
+def test_bad_arguments(tmp_path, session, capsys):
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "x").write_text("")
+    assert recon_main(["prepare", str(session), str(tmp_path / "full")]) == 2
+    assert "not empty" in capsys.readouterr().err
+    assert recon_main(["prepare", str(session), str(tmp_path / "o"), "--frames", "1"]) == 2
+    assert recon_main(["prepare", str(tmp_path / "nothing"), str(tmp_path / "o2")]) == 1
+    assert "not a thermal4d session" in capsys.readouterr().err
