@@ -2,9 +2,7 @@
 calibration file (round trip, validation, where `recon prepare` finds it); the messages when the
 target is not found."""
 import json
-from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
@@ -13,29 +11,15 @@ from rig.calibrate import (CALIBRATION_FILE, CalibrationError, RigCalibration, c
                            load_calibration, simulated_calibration)
 from rig.cli import main as rig_main
 from rig.sim import make_calibration_world, make_world
+from rig.sim.calibration import write_view_pairs
 
 SIZE = (320, 240)
-
-
-def _render_pairs(world, folder: Path, times) -> None:
-    """rgb/NAME.png (phone noise) + thermal/NAME.png (TemperatureLinear10mK counts, NETD noise)."""
-    (folder / "rgb").mkdir(parents=True)
-    (folder / "thermal").mkdir()
-    rc = world.rig_config
-    for i, t in enumerate(times):
-        c2w_rgb, c2w_th = world.rig_pose(0, t)
-        k, kt = rc.rgb.scaled(*SIZE), rc.thermal.scaled(*SIZE)
-        rng = np.random.default_rng(i)
-        rgb = world.render_rgb(c2w_rgb, k.fx, k.fy, k.cx, k.cy, *SIZE, t, rng=rng)
-        kelvin = world.render_temperature(c2w_th, kt.fx, kt.fy, kt.cx, kt.cy, *SIZE, t)
-        cv2.imwrite(str(folder / "rgb" / f"{i:03d}.png"), rgb[..., ::-1])
-        cv2.imwrite(str(folder / "thermal" / f"{i:03d}.png"), world.thermal_counts(kelvin, rng))
 
 
 @pytest.fixture(scope="module")
 def board_pairs(tmp_path_factory):
     folder = tmp_path_factory.mktemp("board")
-    _render_pairs(make_calibration_world(0), folder, np.linspace(0, 10, 12, endpoint=False))
+    write_view_pairs(make_calibration_world(0), folder, np.linspace(0, 10, 12, endpoint=False), SIZE)
     return folder
 
 
@@ -55,7 +39,7 @@ def test_recovers_the_simulated_rig(board_pairs, capsys):
 
 
 def test_target_not_found_says_what_to_recapture(tmp_path):
-    _render_pairs(make_world("default", 0), tmp_path, [0.0, 2.0, 4.0])     # the table, no board
+    write_view_pairs(make_world("default", 0), tmp_path, [0.0, 2.0, 4.0], SIZE)   # the table, no board
     with pytest.raises(CalibrationError) as err:
         calibrate(tmp_path)
     msg = str(err.value)

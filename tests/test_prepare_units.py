@@ -4,12 +4,13 @@ import cv2
 import numpy as np
 import pytest
 
-from recon.prepare.pipeline import _downscale_counts, _intrinsics, _max_distortion_px, _spans
+from recon.prepare.recover import spans
+from recon.prepare.writing import dataset_intrinsics, downscale_counts, max_distortion_px
 from recon.prepare.poses import (apply_similarity, interpolate_pose, matrix_from_quat, path_jitter_deg,
                                  pose_errors, quat_from_matrix, umeyama)
 from recon.prepare.scale import scale_from_target
 from recon.sfm import sequential_pairs
-from rig.calibrate import Target
+from rig.calibrate import Lens, Target
 from rig.sim.camera import look_at, rotation
 
 
@@ -74,17 +75,17 @@ def test_scale_from_a_triangulated_checkerboard():
 def test_downscaled_thermal_counts_average_and_keep_holes():
     counts = np.arange(1, 65, dtype=np.uint16).reshape(8, 8) * 100
     counts[0, 0] = 0
-    out = _downscale_counts(counts, 2)
+    out = downscale_counts(counts, 2)
     assert out.shape == (4, 4) and out[0, 0] == 0
     assert out[1, 1] == np.round(counts[2:4, 2:4].astype(float).mean())
 
 
 def test_negligible_lens_distortion_is_written_as_pinhole():
-    assert _max_distortion_px(800, 800, 320, 240, 640, 480, np.array([1e-4, 0, 0, 0])) < 0.1
-    k, d = _intrinsics(800, 800, 320, 240, 640, 480, (1e-4, 0, 0, 0), 2)
+    assert max_distortion_px(800, 800, 320, 240, 640, 480, np.array([1e-4, 0, 0, 0])) < 0.1
+    k, d = dataset_intrinsics(Lens(640, 480, 800, 800, 320, 240, 1e-4), 2)
     assert d is None and k == (400, 400, 160, 120)
-    k, d = _intrinsics(800, 800, 320, 240, 640, 480, (-0.1, 0.01, 0, 0), 1)
-    assert d is not None and d.k1 == -0.1
+    k, d = dataset_intrinsics(Lens(640, 480, 800, 800, 320, 240, -0.1, 0.01), 1)
+    assert d is not None and d.k1 == -0.1 and d.fx == 800
 
 
 def test_sequential_pairs_have_neighbours_jumps_and_loop_keyframes():
@@ -95,5 +96,5 @@ def test_sequential_pairs_have_neighbours_jumps_and_loop_keyframes():
 
 
 def test_time_spans_summary():
-    assert _spans([1.0, 1.2, 1.4, 5.0]) == "1.0-1.4, 5.0"
-    assert _spans([]) == "-"
+    assert spans([1.0, 1.2, 1.4, 5.0]) == "1.0-1.4, 5.0"
+    assert spans([]) == "-"

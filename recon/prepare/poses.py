@@ -98,7 +98,7 @@ def pose_errors(estimated: np.ndarray, truth: np.ndarray) -> dict:
     aligned = np.stack([apply_similarity(s, r, t, c) for c in estimated])
     rot = np.array([rotation_angle_deg(a[:3, :3].T @ g[:3, :3]) for a, g in zip(aligned, truth)])
     pos = np.linalg.norm(aligned[:, :3, 3] - truth[:, :3, 3], axis=1)
-    return {"scale": s, "rotation_deg": rot, "position": pos, "aligned": aligned}
+    return {"scale": s, "similarity": (s, r, t), "rotation_deg": rot, "position": pos, "aligned": aligned}
 
 
 def path_jitter_deg(times: np.ndarray, c2ws: np.ndarray) -> np.ndarray:

@@ -26,6 +26,10 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from recon.prepare.poses import umeyama
+from recon.prepare.simtruth import session_truth
+from rig.calibrate import Target, detect_corners
+
 DEPTH_RANGE_M = (0.05, 50.0)   # plausible median camera-to-scene distance of a handheld rig
 
 
@@ -78,6 +82,48 @@ def scale_from_target(corners: dict[str, np.ndarray], c2w: dict[str, np.ndarray]
 def scale_from_truth(c2w_units: np.ndarray, c2w_true: np.ndarray) -> ScaleEstimate:
     """Simulated sessions: the similarity between recovered (K, 4, 4) and true (K, 4, 4) camera
     centres gives metres per unit."""
-    from recon.prepare.poses import umeyama
     s, _, _ = umeyama(c2w_units[:, :3, 3], c2w_true[:, :3, 3])
     return ScaleEstimate(s, "simulator", {"views": len(c2w_units)})
+
+
+def median_depth_units(result) -> float:
+    """Median over registered frames of the median depth of the points each observes (SfM units)."""
+    seen: dict[str, list[int]] = {n: [] for n in result.c2w}
+    for i, track in enumerate(result.tracks):
+        for n in set(track):
+            seen[n].append(i)
+    depths = []
+    for n, idx in seen.items():
+        if idx:
+            w2c = np.linalg.inv(result.c2w[n])
+            depths.append(np.median((result.points_xyz[idx] @ w2c[:3, :3].T + w2c[:3, 3])[:, 2]))
+    return float(np.median(depths))
+
+
+def metric_scale(explicit: float | None, session, recovered, selected, target: Target) -> ScaleEstimate:
+    """--scale, else the checkerboard in view of >= 3 registered frames, else (simulated sessions)
+    the simulator's true camera path, else unknown (method "none" with the reason)."""
+    if explicit is not None:
+        return ScaleEstimate(explicit, "explicit")
+    result = recovered.result
+    corners = {}
+    for k in recovered.registered:
+        c = detect_corners(cv2.cvtColor(selected[k].image, cv2.COLOR_RGB2GRAY), target.pattern, fast=True)
+        if c is not None:
+            corners[recovered.names[k]] = c
+    cams = {n: result.cameras[n] for n in corners}
+    est = scale_from_target(corners, result.c2w, {n: c.opencv_matrix() for n, c in cams.items()},
+                            {n: c.coefficients() for n, c in cams.items()}, target.pattern, target.square_m)
+    if est is not None and est.metres_per_unit is not None:
+        return est
+    reason = (est.detail["reason"] if est is not None else
+              f"the {target.pattern[0] + 1}x{target.pattern[1] + 1}-square checkerboard was found in "
+              f"{len(corners)} registered frames (need 3)")
+    truth = session_truth(session)
+    if truth is None:
+        return ScaleEstimate(None, "none", {"reason": reason})
+    k = recovered.registered
+    est = scale_from_truth(np.stack([recovered.c2w(i) for i in k]),
+                           np.stack([truth.rgb_pose(session.rgb[selected[i].pair.rgb_index]) for i in k]))
+    est.detail["reason"] = reason
+    return est

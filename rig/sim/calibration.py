@@ -127,3 +127,21 @@ def make_calibration_world(seed: int = 0, target: CheckerboardTarget | None = No
     scene = CalibrationScene(target or CheckerboardTarget(),
                              plain_texture(rng, (0.55, 0.52, 0.48), contrast=0.25))
     return World("default", seed, rig_config, scene=scene)
+
+
+def write_view_pairs(world: World, folder, times, size: tuple[int, int] = (320, 240), rig: int = 0) -> None:
+    """What `rig calibrate` takes as a folder: folder/rgb/NNN.png (8-bit sRGB, phone noise) and
+    folder/thermal/NNN.png (TemperatureLinear10mK counts, NETD noise) of `rig` at `times` (s)."""
+    from pathlib import Path
+    folder = Path(folder)
+    (folder / "rgb").mkdir(parents=True, exist_ok=True)
+    (folder / "thermal").mkdir(exist_ok=True)
+    rc = world.rig_config
+    k, kt = rc.rgb.scaled(*size), rc.thermal.scaled(*size)
+    for i, t in enumerate(times):
+        c2w_rgb, c2w_th = world.rig_pose(rig, t)
+        rng = np.random.default_rng([world.seed, i])
+        rgb = world.render_rgb(c2w_rgb, k.fx, k.fy, k.cx, k.cy, *size, t, rng=rng)
+        kelvin = world.render_temperature(c2w_th, kt.fx, kt.fy, kt.cx, kt.cy, *size, t)
+        cv2.imwrite(str(folder / "rgb" / f"{i:03d}.png"), np.ascontiguousarray(rgb[..., ::-1]))
+        cv2.imwrite(str(folder / "thermal" / f"{i:03d}.png"), world.thermal_counts(kelvin, rng))
