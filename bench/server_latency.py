@@ -7,16 +7,22 @@ Arrangement as on the appliance: server and trainer share one process (the serve
 loop of requests over one kept-alive connection, round robin over the page's endpoints, 20 ms
 apart. Conditions: idle; a pure-Python CPU-bound thread in the server's process (the worst case
 for the GIL); real DTG training (tiny simulated scene) publishing through TrainingFeed.
-Throughput: training iterations/s without anything, vs with TrainingFeed + server + a client
-polling like the page (once a second), alternated `--repeats` times; medians reported.
+Throughput: one trainer alternating blocks without anything and with TrainingFeed + server + a
+client polling like the page (its endpoints, ~8 requests/s); see throughput().
 """
 from __future__ import annotations
+
+import os
+
+# before torch loads libgomp: spinning OpenMP waits make CPU time meaningless on a shared machine
+# (README, "splat": the wait policy matters a lot on 2 shared cores)
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import argparse
 import http.client
 import json
-import os
 import platform
+import signal
 import statistics
 import subprocess
 import sys
@@ -86,18 +92,51 @@ def make_trainer(scene, iterations: int):
     return Trainer(cfg, scene, log=lambda _: None)
 
 
-def train_rate(scene, steps: int, feed_factory=None) -> float:
-    """Iterations/s of `steps` training steps (after 5 warm-up steps), optionally publishing."""
+def throughput(scene, session: Path, run_dir: Path, blocks: int, block_s: float) -> dict:
+    """One trainer, alternating blocks of `block_s` seconds: bare (no feed, page poller paused with
+    SIGSTOP) and served (TrainingFeed on every step, poller polling). Each served block is compared
+    with the mean of the bare blocks on either side, so slow drifts of machine load cancel.
+    Also CPU seconds per iteration of this process (trainer + feed + server threads), which
+    other machines' jobs disturb less than wall-clock rates."""
+    import server
+    from recon.publish import LivePublisher, TrainingFeed
+
     tr = make_trainer(scene, 10**6)
-    feed = feed_factory() if feed_factory else None
     for _ in range(5):
         tr.step()
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        stats = tr.step()
-        if feed:
-            feed.on_step(tr, stats)
-    return steps / (time.perf_counter() - t0)
+    handle = server.serve("127.0.0.1", 0, run_dir=run_dir, session_dir=session)
+    feed = TrainingFeed(LivePublisher(run_dir))
+    poller = run_client(handle.url, 0, 1.0 / len(PAGE_POLL), PAGE_POLL, duration_s=3600)
+    rows = []
+    try:
+        for b in range(blocks):
+            served = b % 2 == 1
+            os.kill(poller.pid, signal.SIGCONT if served else signal.SIGSTOP)
+            t0, c0, n = time.perf_counter(), time.process_time(), 0
+            while time.perf_counter() - t0 < block_s:
+                stats = tr.step()
+                n += 1
+                if served:
+                    feed.on_step(tr, stats)
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            rows.append({"served": served, "its": n / wall, "cpu_s_per_it": cpu / n, "gaussians": tr.model.num_gaussians})
+            print(f"  block {b:2d} {'served' if served else 'bare  '}: {n / wall:6.2f} it/s, "
+                  f"{1e3 * cpu / n:6.1f} ms CPU/it", flush=True)
+    finally:
+        os.kill(poller.pid, signal.SIGCONT)
+        poller.terminate()
+        poller.wait()
+        handle.stop()
+    ratios = {"its": [], "cpu": []}
+    for i in range(1, len(rows) - 1, 2):
+        before, served, after = rows[i - 1], rows[i], rows[i + 1]
+        ratios["its"].append(served["its"] / ((before["its"] + after["its"]) / 2))
+        ratios["cpu"].append(((before["cpu_s_per_it"] + after["cpu_s_per_it"]) / 2) / served["cpu_s_per_it"])
+    return {"blocks": rows, "block_s": block_s,
+            "served_over_bare_its_median": round(statistics.median(ratios["its"]), 3),
+            "served_over_bare_its_pairs": [round(r, 3) for r in ratios["its"]],
+            "served_over_bare_cpu_median": round(statistics.median(ratios["cpu"]), 3),
+            "served_over_bare_cpu_pairs": [round(r, 3) for r in ratios["cpu"]]}
 
 
 def busy(stop: threading.Event) -> None:
@@ -112,8 +151,8 @@ def main() -> int:
     ap.add_argument("--out", default="bench/results/server_latency.json", help="result file (default: %(default)s)")
     ap.add_argument("--requests", type=int, default=400, help="requests per latency condition (default: 400)")
     ap.add_argument("--size", default="128x96", help="simulated image size WxH (default: 128x96)")
-    ap.add_argument("--steps", type=int, default=150, help="training steps per throughput run (default: 150)")
-    ap.add_argument("--repeats", type=int, default=3, help="throughput runs per arm (default: 3)")
+    ap.add_argument("--blocks", type=int, default=21, help="alternating throughput blocks, odd (default: 21)")
+    ap.add_argument("--block-s", type=float, default=6.0, help="seconds per throughput block (default: 6)")
     ap.add_argument("--session", help="a session folder for /api/capture (default: a 5 s simulated capture)")
     ap.add_argument("--client", help=argparse.SUPPRESS)
     ap.add_argument("--n", type=int, default=0, help=argparse.SUPPRESS)
@@ -143,7 +182,8 @@ def main() -> int:
         feed.on_step(tr, tr.step())     # something of everything published before measuring
     feed.publish_renders(tr, all_slots=True)
 
-    results = {"machine": {"cpus": os.cpu_count(), "load_avg_start": os.getloadavg(), "python": platform.python_version()},
+    results = {"machine": {"cpus": os.cpu_count(), "load_avg_start": os.getloadavg(), "python": platform.python_version(),
+                           "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY")},
                "size": args.size, "latency": {}, "throughput": {}}
     handle = server.serve("127.0.0.1", 0, run_dir=run_dir, session_dir=session)
     time.sleep(1.5)                     # the session monitor's first summary
@@ -180,26 +220,14 @@ def main() -> int:
     results["latency"]["training"]["training_steps_during"] = steps["n"]
     handle.stop()
 
-    # throughput: alternate the two arms so drifting machine load hits both alike
-    bare, served = [], []
-    for i in range(args.repeats):
-        bare.append(train_rate(scene, args.steps))
-        h = server.serve("127.0.0.1", 0, run_dir=tmp / f"run_tp{i}", session_dir=session)
-        proc = run_client(h.url, 0, 1.0 / len(PAGE_POLL), PAGE_POLL, duration_s=3600)
-        served.append(train_rate(scene, args.steps, lambda: TrainingFeed(LivePublisher(tmp / f"run_tp{i}"))))
-        proc.terminate()
-        proc.wait()
-        h.stop()
-        print(f"throughput run {i}: bare {bare[-1]:.2f} it/s, with feed + server + page poller {served[-1]:.2f} it/s", flush=True)
-    results["throughput"] = {"bare_its": [round(x, 3) for x in bare], "served_its": [round(x, 3) for x in served],
-                             "median_bare_its": round(statistics.median(bare), 3),
-                             "median_served_its": round(statistics.median(served), 3),
-                             "served_over_bare": round(statistics.median(served) / statistics.median(bare), 3),
-                             "steps": args.steps}
+    print("throughput, alternating bare / served blocks:", flush=True)
+    results["throughput"] = throughput(scene, session, tmp / "run_tp", args.blocks, args.block_s)
     results["machine"]["load_avg_end"] = os.getloadavg()
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(results, indent=1))
-    print(f"throughput with the page attached: {100 * results['throughput']['served_over_bare']:.1f} % of bare -> {args.out}")
+    tp = results["throughput"]
+    print(f"throughput with feed + server + page: {100 * tp['served_over_bare_its_median']:.1f} % of bare "
+          f"(wall-clock it/s), {100 * tp['served_over_bare_cpu_median']:.1f} % (CPU per iteration) -> {args.out}")
     return 0
 
 

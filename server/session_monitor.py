@@ -2,7 +2,9 @@
 
 A thread refreshes the session (`rig.session`) and recomputes `rig.info.session_info` only when
 new records, sync.json or closed.json appeared, at most every `poll_s`; requests read the last
-result, so a slow summary never delays a page.
+result, so a slow summary never delays a page. The summary walks every record, so on a long
+capture it slows down: the monitor then waits longer between summaries, keeping its share of the
+interpreter below `max_duty` (with `rig capture --serve` it shares the process with the receiver).
 """
 from __future__ import annotations
 
@@ -26,9 +28,9 @@ def sync_view(info: dict) -> dict:
 
 
 class SessionMonitor:
-    def __init__(self, session_dir: str | Path, poll_s: float = 1.0):
+    def __init__(self, session_dir: str | Path, poll_s: float = 1.0, max_duty: float = 0.1):
         self.path = Path(session_dir)
-        self.poll_s = poll_s
+        self.poll_s, self.max_duty = poll_s, max_duty
         self._session = None
         self._stamp = None
         self._lock = threading.Lock()
@@ -53,11 +55,13 @@ class SessionMonitor:
 
     def _run(self) -> None:
         while True:
+            start = time.monotonic()
             try:
                 self.update()
             except Exception as exc:      # a half-made session must not end the monitor
                 self.error = f"{type(exc).__name__}: {exc}"
-            if self._stop.wait(self.poll_s):
+            busy = time.monotonic() - start
+            if self._stop.wait(max(self.poll_s, busy / self.max_duty - busy)):
                 return
 
     def _files_stamp(self):
