@@ -168,7 +168,7 @@ def register(sub) -> None:
     p.add_argument("--iterations", type=int, help="iterations (default 3000 unless --minutes)")
     p.add_argument("--minutes", type=float, help="wall-clock budget; the schedule is stretched to fit it")
     p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoints/latest.pt")
-    p.add_argument("--max-gaussians", type=int, help="Gaussian budget (default 60000)")
+    p.add_argument("--max-gaussians", type=int, help="Gaussian budget (default: 0.5 per pixel of a training image, within 5k..100k)")
     p.add_argument("--auto-budget", action="store_true",
                    help="stop adding Gaussians when held-out PSNR stops improving")
     p.add_argument("--seed", type=int)

@@ -89,6 +89,9 @@ class Trainer:
         self.model = model if model is not None else self._init_model()
         check_params(cfg.model, dict(self.model.gaussians))
         self.optimizer = self._build_optimizer()
+        if not cfg.densify.max_gaussians:
+            v = next(iter(scene.train[cfg.model.modalities[0]]))
+            cfg.densify.max_gaussians = int(min(max(0.5 * v.camera.width * v.camera.height, 5000), 100_000))
         self.strategy = Strategy(cfg.densify, cfg.model.modalities, self.extent, self.gen)
         self.smoothness = EmbeddingSmoothness(cfg.loss.embedding_knn, cfg.loss.embedding_knn_sample,
                                               cfg.loss.embedding_knn_falloff, self.extent)
