@@ -12,15 +12,10 @@ client polling like the page (its endpoints, ~8 requests/s); see throughput().
 """
 from __future__ import annotations
 
-import os
-
-# before torch loads libgomp: spinning OpenMP waits make CPU time meaningless on a shared machine
-# (README, "splat": the wait policy matters a lot on 2 shared cores)
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
 import argparse
 import http.client
 import json
+import os
 import platform
 import signal
 import statistics
@@ -183,7 +178,8 @@ def main() -> int:
     feed.publish_renders(tr, all_slots=True)
 
     results = {"machine": {"cpus": os.cpu_count(), "load_avg_start": os.getloadavg(), "python": platform.python_version(),
-                           "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY")},
+                           "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
+                           "gomp_spincount": os.environ.get("GOMP_SPINCOUNT")},
                "size": args.size, "latency": {}, "throughput": {}}
     handle = server.serve("127.0.0.1", 0, run_dir=run_dir, session_dir=session)
     time.sleep(1.5)                     # the session monitor's first summary
