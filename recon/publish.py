@@ -3,9 +3,10 @@
 The trainer writes, the server only reads. Contract, ``RUN/live/`` (format "thermal4d-live", v1):
 
   status.json        the latest state, one JSON object, replaced whole on every update:
-                     format, version, state ("starting" | "training" | "done" | "failed"), method,
-                     phase (routing phase or null), iteration, iterations (budget or null),
-                     progress [0, 1], its (iterations/s, recent), elapsed_s (training time),
+                     format, version, state ("starting" | "training" | "finishing" | "done" |
+                     "failed"), method, phase (routing phase or null), iteration, iterations
+                     (budget or null), minutes (wall-clock budget or null), progress [0, 1],
+                     its (iterations/s, recent), elapsed_s (training time),
                      losses {modality: float}, psnr {modality: held-out dB}, gaussians,
                      roles {shared, rgb, thermal} (Gaussians per routing role), time_steps,
                      latest_time, unix (time.time() of the write), wall_s (s since the publisher

@@ -70,6 +70,7 @@ def alive(handle) -> bool:
     "//etc/passwd", "/etc/passwd", "/secret.txt", "/live/secret.txt", "/live/status.json",
     "/render/latest/secret.txt", "/render/latest/", "/render/latest", "/render//rgb.png",
     "http://evil.example/../secret.txt", "/api/../secret.txt", "/api/%2e%2e/secret.txt",
+    "/%ff%fe/secret.txt", "/api/metrics?" + "&".join(["a=1"] * 20),
 ])
 def test_path_traversal_is_refused(handle, path):
     response = raw(handle, request(path))
