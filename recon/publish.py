@@ -129,9 +129,11 @@ class LivePublisher:
         old = self.dir / "renders.json"
         if old.exists():     # a resumed run keeps showing its previous renders until new ones come
             try:
-                self._index = json.loads(old.read_text())
+                index = json.loads(old.read_text())
             except ValueError:
-                pass
+                index = None
+            if isinstance(index, dict) and isinstance(index.get("sets"), dict) and isinstance(index.get("version"), int):
+                self._index = index
 
     def _existing_lines(self) -> int:
         if not self._metrics.exists():

@@ -161,3 +161,14 @@ def test_feed_publishes_a_trainer_and_does_not_change_training(scene, tmp_path, 
     assert np.abs(counts - expect).max() <= KELVIN_SCALE
     rgb = np.asarray(Image.open(io.BytesIO((live / "render/latest/rgb.png").read_bytes())))
     assert rgb.shape == (view.camera.height, view.camera.width, 3)
+
+
+def test_a_resumed_run_keeps_its_renders_and_counts_on(tmp_path):
+    LivePublisher(tmp_path).renders(0.5, np.zeros((4, 4, 3), np.uint8), None, 290.0, 310.0, slot=2)
+    again = LivePublisher(tmp_path)
+    again.renders(1.0, np.zeros((4, 4, 3), np.uint8), None, 290.0, 310.0)
+    index = json.loads((tmp_path / "live" / "renders.json").read_text())
+    assert sorted(index["sets"]) == ["latest", "t02"] and index["sets"]["latest"]["version"] == 2
+    (tmp_path / "live" / "renders.json").write_text("[1, 2]")          # not an index: start afresh
+    LivePublisher(tmp_path).renders(1.0, np.zeros((4, 4, 3), np.uint8), None, 290.0, 310.0)
+    assert json.loads((tmp_path / "live" / "renders.json").read_text())["version"] == 1
