@@ -26,7 +26,9 @@ from PIL import Image
 
 from recon.config import METHODS, config_to_dict, make_config
 from recon.data import load_dataset
-from recon.eval import evaluate_run, write_render, write_results
+from recon.eval import evaluate_run, write_results
+from recon.eval.evaluate import frame_metrics
+from recon.eval.renders import encode_render, write_render_pixels
 from recon.export import export_deformation, export_ply, model_bytes
 from recon.render import render_frame
 from recon.scene import Scene
@@ -34,13 +36,30 @@ from recon.train import Trainer
 from recon import viz
 
 
+def test_render(trainer: Trainer, modality: str, view) -> np.ndarray:
+    """A test view rendered with the ground truth's encoding (uint8 RGB or uint16 counts)."""
+    image = render_frame(trainer.model, modality, view.time, view.camera)
+    image = image.clamp(0, 1) if modality == "rgb" else trainer.scene.kelvin(image[..., 0])
+    return encode_render(image.numpy(), modality, trainer.scene.dataset.thermal_scale_k)
+
+
+def evaluate_model(trainer: Trainer, every: int = 1) -> dict:
+    """Mean test metrics per modality straight from the model (every `every`-th test view), with
+    the same encodings and metric code as `recon eval` on written renders, without the disk."""
+    out = {}
+    for m in trainer.cfg.model.modalities:
+        rows = [frame_metrics(trainer.scene.dataset, v.frame, test_render(trainer, m, v), None)
+                for v in trainer.scene.test[m][::every]]
+        if rows:
+            out[m] = {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
+    return out
+
+
 def render_test_views(trainer: Trainer, run_dir: Path) -> int:
     n = 0
     for m in trainer.cfg.model.modalities:
         for view in trainer.scene.test[m]:
-            image = render_frame(trainer.model, m, view.time, view.camera)
-            image = image.clamp(0, 1) if m == "rgb" else trainer.scene.kelvin(image[..., 0])
-            write_render(run_dir, view.frame, image.numpy(), trainer.scene.dataset.thermal_scale_k)
+            write_render_pixels(run_dir, view.frame, test_render(trainer, m, view))
             n += 1
     return n
 
