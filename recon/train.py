@@ -217,8 +217,11 @@ class Trainer:
                 stats["kl"] = float(kl.detach())
         elif self.cfg.model.routing and routing.phase(self.cfg.routing, p) == "frozen":
             mask = inference_masks(self.model)[modality]
-        image, out, g = render(self.model, modality, t, view.camera, p,
-                               sh_degree=self.active_sh_degree(modality, p), mask=mask, rgb_geometry=rgb_geometry)
+        background = None
+        if modality == "rgb" and float(torch.rand((), generator=self.gen)) < self.cfg.loss.random_background_rgb:
+            background = torch.rand(self.model.backgrounds[modality].shape, generator=self.gen)
+        image, out, g = render(self.model, modality, t, view.camera, p, sh_degree=self.active_sh_degree(modality, p),
+                               mask=mask, rgb_geometry=rgb_geometry, background=background)
         if modality == "rgb":
             rec = rgb_loss(image, target, self.cfg.loss.rgb_dssim)
         else:
