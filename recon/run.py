@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -138,31 +139,61 @@ def scene_facts(scene: Scene, data_dir: Path) -> dict:
                        "width": f.width, "height": f.height}}
 
 
-def run(args: argparse.Namespace) -> int:
-    data_dir = Path(args.input)
-    if not (data_dir / "transforms.json").exists():
-        raise SystemExit(f"{data_dir}: no transforms.json here; `recon run` takes a prepared dataset "
-                         f"(see FORMATS.md or `recon simulate`)")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    scene = Scene(load_dataset(data_dir))
-    ckpt = out / "checkpoints" / "latest.pt"
-    overrides = {k: v for k, v in {"iterations": args.iterations, "minutes": args.minutes,
-                                   "seed": args.seed, "threads": args.threads}.items() if v is not None}
+def input_kind(path: Path) -> str:
+    if (path / "transforms.json").exists():
+        return "dataset"
+    if (path / "session.json").exists():
+        return "session"
+    raise SystemExit(f"{path}: neither a prepared dataset (transforms.json) nor a rig session "
+                     f"(session.json); see FORMATS.md, `recon simulate` or `rig capture`")
+
+
+def make_trainer(args, scene: Scene, out: Path, overrides: dict) -> Trainer:
     if args.resume:
+        ckpt = out / "checkpoints" / "latest.pt"
         if not ckpt.exists():
             raise SystemExit(f"{ckpt}: no checkpoint to resume from")
         trainer = Trainer.resume(ckpt, scene, out, **overrides)
         print(f"resumed {ckpt} at iteration {trainer.iteration}")
+        return trainer
+    return Trainer(config_from_args(args, overrides), scene, out)
+
+
+def config_from_args(args, overrides: dict):
+    cfg = make_config(args.method, **overrides)
+    if args.max_gaussians:
+        cfg.densify.max_gaussians = args.max_gaussians
+    cfg.densify.auto_stop = args.auto_budget
+    return cfg
+
+
+def run(args: argparse.Namespace) -> int:
+    inp, out = Path(args.input), Path(args.out)
+    kind = input_kind(inp)
+    if args.follow and (kind != "session" or args.resume):
+        raise SystemExit("--follow trains on a rig session while it is captured (and cannot --resume)")
+    out.mkdir(parents=True, exist_ok=True)
+    overrides = {k: v for k, v in {"iterations": args.iterations, "minutes": args.minutes,
+                                   "seed": args.seed, "threads": args.threads}.items() if v is not None}
+    log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
+    if args.follow:
+        from recon.follow import FollowOptions, follow
+        cfg = config_from_args(args, overrides)
+        trainer, data_dir = follow(inp, out, cfg, FollowOptions(after_iterations=args.after), log)
+        scene = trainer.scene
     else:
-        cfg = make_config(args.method, **overrides)
-        if args.max_gaussians:
-            cfg.densify.max_gaussians = args.max_gaussians
-        cfg.densify.auto_stop = args.auto_budget
-        trainer = Trainer(cfg, scene, out)
+        data_dir = inp
+        if kind == "session":
+            from recon.prepare import prepare_session
+            data_dir = out / "data"
+            if not (data_dir / "transforms.json").exists():
+                prepare_session(inp, data_dir)
+        scene = Scene(load_dataset(data_dir))
+        trainer = make_trainer(args, scene, out, overrides)
     (out / "config.json").write_text(json.dumps(config_to_dict(trainer.cfg), indent=2))
     (out / "scene.json").write_text(json.dumps(scene_facts(scene, data_dir), indent=2))
-    trainer.train()
+    if not args.follow:
+        trainer.train()
     summary = finish(trainer, out, data_dir)
     print(json.dumps(summary["metrics"], indent=2))
     print(f"{trainer.model.num_gaussians} Gaussians {summary['gaussians_per_role']}, "
@@ -179,8 +210,13 @@ def register(sub) -> None:
                "  recon simulate data/default --frames 40 --size 160x120\n"
                "  recon run data/default --out runs/dtg --minutes 10\n"
                "  recon run data/default --method ed3dgs-thermal --out runs/ed-th --iterations 2000\n"
-               "  recon run data/default --out runs/dtg --resume      # continue from the last checkpoint")
-    p.add_argument("input", metavar="DATASET", help="prepared dataset folder (with transforms.json)")
+               "  recon run data/default --out runs/dtg --resume      # continue from the last checkpoint\n"
+               "  recon run sessions/s1 --out runs/s1                 # a rig session: recon prepare, then train\n"
+               "  rig capture --duration 60 --out sessions/live &\n"
+               "  recon run sessions/live --follow --out runs/live    # train while it captures")
+    p.add_argument("input", metavar="DATASET_OR_SESSION",
+                   help="prepared dataset folder (transforms.json) or rig session (session.json; "
+                        "prepared into OUT/data with `recon prepare` first)")
     p.add_argument("--method", default="dtg", choices=list(METHODS),
                    help="dtg (full) or a baseline/ablation of the paper's Table 3 (default: dtg)")
     p.add_argument("--out", required=True, help="run folder (created)")
@@ -190,6 +226,9 @@ def register(sub) -> None:
     p.add_argument("--max-gaussians", type=int, help="Gaussian budget (default: 0.5 per pixel of a training image, within 5k..100k)")
     p.add_argument("--auto-budget", action="store_true",
                    help="stop adding Gaussians when held-out PSNR stops improving")
+    p.add_argument("--follow", action="store_true",
+                   help="train while `rig capture` is still writing SESSION; stop --after iterations after it ends")
+    p.add_argument("--after", type=int, default=1500, help="with --follow: iterations after capture ends (default 1500)")
     p.add_argument("--seed", type=int)
     p.add_argument("--threads", type=int, help="CPU threads (default: all)")
     p.set_defaults(func=run)
