@@ -296,9 +296,12 @@ class TrainingFeed:
         cfg = trainer.cfg
         phase = routing.phase(cfg.routing, trainer.progress()) if cfg.model.routing else None
         times = trainer.scene.times
+        # live training (recon.follow) schedules progress itself: the configured budget is not its end
+        scheduled = getattr(trainer, "progress_fn", None) is not None
         self.pub.status({
             "state": state, "method": cfg.method, "phase": phase, "iteration": trainer.iteration,
-            "iterations": None if cfg.minutes else cfg.iterations, "minutes": cfg.minutes,
+            "iterations": None if cfg.minutes or scheduled else cfg.iterations,
+            "minutes": None if scheduled else cfg.minutes,
             "progress": round(trainer.progress(), 5), "its": self._its, "elapsed_s": round(trainer.elapsed, 3),
             "losses": {k[5:]: v for k, v in self._losses.items()}, "psnr": self._psnr,
             "gaussians": trainer.model.num_gaussians, "roles": trainer.counts(),
