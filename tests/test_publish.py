@@ -172,3 +172,14 @@ def test_a_resumed_run_keeps_its_renders_and_counts_on(tmp_path):
     (tmp_path / "live" / "renders.json").write_text("[1, 2]")          # not an index: start afresh
     LivePublisher(tmp_path).renders(1.0, np.zeros((4, 4, 3), np.uint8), None, 290.0, 310.0)
     assert json.loads((tmp_path / "live" / "renders.json").read_text())["version"] == 1
+
+
+def test_status_of_live_training_has_no_fixed_budget(scene, tmp_path):
+    tr = trainer(scene)
+    feed = TrainingFeed(LivePublisher(tmp_path))
+    feed.publish_status(tr)
+    assert json.loads((tmp_path / "live" / "status.json").read_text())["iterations"] == 60
+    tr.progress_fn = lambda _: 0.25          # as recon.follow drives it while the capture grows
+    feed.publish_status(tr)
+    status = json.loads((tmp_path / "live" / "status.json").read_text())
+    assert status["iterations"] is None and status["minutes"] is None and status["progress"] == 0.25
