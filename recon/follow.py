@@ -150,7 +150,7 @@ class Reconstructor(threading.Thread):
 
 
 def follow(session_dir: Path, run_dir: Path, cfg: TrainConfig, opts: FollowOptions, log,
-           prepare_options: dict | None = None, on_eval=None) -> tuple[Trainer, Path]:
+           prepare_options: dict | None = None, on_eval=None, on_step=None) -> tuple[Trainer, Path]:
     """Train while the session grows; return the trainer and the final dataset folder."""
     recon_thread = Reconstructor(session_dir, run_dir / "live_data", opts, log, prepare_options or {})
     recon_thread.start()
@@ -200,7 +200,9 @@ def follow(session_dir: Path, run_dir: Path, cfg: TrainConfig, opts: FollowOptio
                     log(f"live: capture finished; {opts.after_iterations} more iterations")
             if trainer is None:
                 continue
-            trainer.tick(on_eval)
+            stats = trainer.tick(on_eval)
+            if on_step:
+                on_step(trainer, stats)
             if closed and trainer.done():
                 break
     finally:

@@ -28,6 +28,7 @@ from PIL import Image
 from recon.config import METHODS, config_to_dict, make_config
 from recon.data import load_dataset
 from recon.eval import evaluate_run, write_results
+from recon.publish import LivePublisher, TrainingFeed
 from recon.eval.evaluate import frame_metrics
 from recon.eval.renders import encode_render, write_render_pixels
 from recon.export import export_deformation, export_ply, model_bytes
@@ -35,6 +36,7 @@ from recon.render import render_frame
 from recon.scene import Scene
 from recon.train import Trainer
 from recon import viz
+from server.cli_options import add_serve_arguments, serve_from_args
 
 
 def test_render(trainer: Trainer, modality: str, view) -> np.ndarray:
@@ -176,10 +178,24 @@ def run(args: argparse.Namespace) -> int:
     overrides = {k: v for k, v in {"iterations": args.iterations, "minutes": args.minutes,
                                    "seed": args.seed, "threads": args.threads}.items() if v is not None}
     log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
+    handle = serve_from_args(args, run_dir=out, session_dir=inp if kind == "session" else None)
+    feed = TrainingFeed(LivePublisher(out))
+    try:
+        return train_and_finish(args, inp, out, kind, overrides, feed, log)
+    except BaseException:
+        feed.pub.status({"state": "failed"})
+        raise
+    finally:
+        if handle:
+            handle.stop()
+
+
+def train_and_finish(args, inp: Path, out: Path, kind: str, overrides: dict, feed, log) -> int:
     if args.follow:
         from recon.follow import FollowOptions, follow
         cfg = config_from_args(args, overrides)
-        trainer, data_dir = follow(inp, out, cfg, FollowOptions(after_iterations=args.after), log)
+        trainer, data_dir = follow(inp, out, cfg, FollowOptions(after_iterations=args.after), log,
+                                   on_step=feed.on_step)
         scene = trainer.scene
     else:
         data_dir = inp
@@ -193,8 +209,10 @@ def run(args: argparse.Namespace) -> int:
     (out / "config.json").write_text(json.dumps(config_to_dict(trainer.cfg), indent=2))
     (out / "scene.json").write_text(json.dumps(scene_facts(scene, data_dir), indent=2))
     if not args.follow:
-        trainer.train()
+        trainer.train(on_step=feed.on_step)
+    feed.publish_status(trainer, state="finishing")
     summary = finish(trainer, out, data_dir)
+    feed.finish(trainer)
     print(json.dumps(summary["metrics"], indent=2))
     print(f"{trainer.model.num_gaussians} Gaussians {summary['gaussians_per_role']}, "
           f"{summary['model_bytes'] / 1e6:.1f} MB, trained {summary['train_seconds']:.0f} s -> {out}")
@@ -231,4 +249,5 @@ def register(sub) -> None:
     p.add_argument("--after", type=int, default=1500, help="with --follow: iterations after capture ends (default 1500)")
     p.add_argument("--seed", type=int)
     p.add_argument("--threads", type=int, help="CPU threads (default: all)")
+    add_serve_arguments(p)
     p.set_defaults(func=run)

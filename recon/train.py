@@ -336,11 +336,14 @@ class Trainer:
         return {"shared" if len(self.cfg.model.modalities) > 1 else self.cfg.model.modalities[0]: self.model.num_gaussians}
 
     # ------------------------------------------------------------------ loop
-    def train(self, on_eval=None) -> list[dict]:
-        """Run to the end of the budget with a progress line, periodic evaluation and checkpoints."""
+    def train(self, on_eval=None, on_step=None) -> list[dict]:
+        """Run to the end of the budget with a progress line, periodic evaluation and checkpoints.
+        on_step(trainer, stats) after every iteration (the live status feed)."""
         self.announce()
         while not self.done():
-            self.tick(on_eval)
+            stats = self.tick(on_eval)
+            if on_step:
+                on_step(self, stats)
         sys.stderr.write("\n")
         return self.history
 
