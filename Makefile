@@ -14,4 +14,4 @@ test:             ## the test suite (tiny scenes; benchmarks live in bench/)
 	$(PY) -m pytest -q
 
 system-deps:      ## Debian packages for the real-peer tests (run as root); tests skip without them
-	apt-get update && apt-get install -y --no-install-recommends aravis-tools libusb-1.0-0
+	apt-get update && apt-get install -y --no-install-recommends aravis-tools libusb-1.0-0 chromium  # chromium: the status-page browser test

@@ -26,17 +26,18 @@ def inference_masks(model: DTGModel) -> dict[str, torch.Tensor] | None:
 
 def render(model: DTGModel, modality: str, t: float, camera: Camera, progress: float = 1.0,
            sh_degree: int | None = None, mask: torch.Tensor | None = None,
-           rgb_geometry: dict[str, torch.Tensor] | None = None):
-    """-> (image (H, W, C) with the learned background, rasterizer output, the Gaussians used).
+           rgb_geometry: dict[str, torch.Tensor] | None = None, background: torch.Tensor | None = None):
+    """-> (image (H, W, C) over the background, rasterizer output, the Gaussians used).
 
-    sh_degree: active SH degree (None: all the model has)."""
+    sh_degree: active SH degree (None: all the model has); background (C,): None = the learned one."""
     g = model.render_inputs(modality, t, progress, mask=mask, rgb_geometry=rgb_geometry)
     feats = g["features"]
     degree = int(round(feats.shape[1] ** 0.5)) - 1 if sh_degree is None else sh_degree
     out = rasterization(g["means"], g["quats"], g["log_scales"], g["opacities"],
                         feats[:, : (degree + 1) ** 2], camera.viewmat, camera.fx, camera.fy,
                         camera.cx, camera.cy, camera.width, camera.height, sh_degree=degree)
-    image = out.image + (1 - out.alpha)[..., None] * model.backgrounds[modality]
+    bg = model.backgrounds[modality] if background is None else background
+    image = out.image + (1 - out.alpha)[..., None] * bg
     return image, out, g
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -26,21 +27,42 @@ from PIL import Image
 
 from recon.config import METHODS, config_to_dict, make_config
 from recon.data import load_dataset
-from recon.eval import evaluate_run, write_render, write_results
+from recon.eval import evaluate_run, write_results
+from recon.publish import LivePublisher, TrainingFeed
+from recon.eval.evaluate import frame_metrics
+from recon.eval.renders import encode_render, write_render_pixels
 from recon.export import export_deformation, export_ply, model_bytes
 from recon.render import render_frame
 from recon.scene import Scene
 from recon.train import Trainer
 from recon import viz
+from server.cli_options import add_serve_arguments, serve_from_args
+
+
+def test_render(trainer: Trainer, modality: str, view) -> np.ndarray:
+    """A test view rendered with the ground truth's encoding (uint8 RGB or uint16 counts)."""
+    image = render_frame(trainer.model, modality, view.time, view.camera)
+    image = image.clamp(0, 1) if modality == "rgb" else trainer.scene.kelvin(image[..., 0])
+    return encode_render(image.numpy(), modality, trainer.scene.dataset.thermal_scale_k)
+
+
+def evaluate_model(trainer: Trainer, every: int = 1) -> dict:
+    """Mean test metrics per modality straight from the model (every `every`-th test view), with
+    the same encodings and metric code as `recon eval` on written renders, without the disk."""
+    out = {}
+    for m in trainer.cfg.model.modalities:
+        rows = [frame_metrics(trainer.scene.dataset, v.frame, test_render(trainer, m, v), None)
+                for v in trainer.scene.test[m][::every]]
+        if rows:
+            out[m] = {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
+    return out
 
 
 def render_test_views(trainer: Trainer, run_dir: Path) -> int:
     n = 0
     for m in trainer.cfg.model.modalities:
         for view in trainer.scene.test[m]:
-            image = render_frame(trainer.model, m, view.time, view.camera)
-            image = image.clamp(0, 1) if m == "rgb" else trainer.scene.kelvin(image[..., 0])
-            write_render(run_dir, view.frame, image.numpy(), trainer.scene.dataset.thermal_scale_k)
+            write_render_pixels(run_dir, view.frame, test_render(trainer, m, view))
             n += 1
     return n
 
@@ -119,32 +141,78 @@ def scene_facts(scene: Scene, data_dir: Path) -> dict:
                        "width": f.width, "height": f.height}}
 
 
-def run(args: argparse.Namespace) -> int:
-    data_dir = Path(args.input)
-    if not (data_dir / "transforms.json").exists():
-        raise SystemExit(f"{data_dir}: no transforms.json here; `recon run` takes a prepared dataset "
-                         f"(see FORMATS.md or `recon simulate`)")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    scene = Scene(load_dataset(data_dir))
-    ckpt = out / "checkpoints" / "latest.pt"
-    overrides = {k: v for k, v in {"iterations": args.iterations, "minutes": args.minutes,
-                                   "seed": args.seed, "threads": args.threads}.items() if v is not None}
+def input_kind(path: Path) -> str:
+    if (path / "transforms.json").exists():
+        return "dataset"
+    if (path / "session.json").exists():
+        return "session"
+    raise SystemExit(f"{path}: neither a prepared dataset (transforms.json) nor a rig session "
+                     f"(session.json); see FORMATS.md, `recon simulate` or `rig capture`")
+
+
+def make_trainer(args, scene: Scene, out: Path, overrides: dict) -> Trainer:
     if args.resume:
+        ckpt = out / "checkpoints" / "latest.pt"
         if not ckpt.exists():
             raise SystemExit(f"{ckpt}: no checkpoint to resume from")
         trainer = Trainer.resume(ckpt, scene, out, **overrides)
         print(f"resumed {ckpt} at iteration {trainer.iteration}")
+        return trainer
+    return Trainer(config_from_args(args, overrides), scene, out)
+
+
+def config_from_args(args, overrides: dict):
+    cfg = make_config(args.method, **overrides)
+    if args.max_gaussians:
+        cfg.densify.max_gaussians = args.max_gaussians
+    cfg.densify.auto_stop = args.auto_budget
+    return cfg
+
+
+def run(args: argparse.Namespace) -> int:
+    inp, out = Path(args.input), Path(args.out)
+    kind = input_kind(inp)
+    if args.follow and (kind != "session" or args.resume):
+        raise SystemExit("--follow trains on a rig session while it is captured (and cannot --resume)")
+    out.mkdir(parents=True, exist_ok=True)
+    overrides = {k: v for k, v in {"iterations": args.iterations, "minutes": args.minutes,
+                                   "seed": args.seed, "threads": args.threads}.items() if v is not None}
+    log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
+    handle = serve_from_args(args, run_dir=out, session_dir=inp if kind == "session" else None)
+    feed = TrainingFeed(LivePublisher(out))
+    try:
+        return train_and_finish(args, inp, out, kind, overrides, feed, log)
+    except BaseException:
+        feed.pub.status({"state": "failed"})
+        raise
+    finally:
+        if handle:
+            handle.stop()
+
+
+def train_and_finish(args, inp: Path, out: Path, kind: str, overrides: dict, feed, log) -> int:
+    if args.follow:
+        from recon.follow import FollowOptions, follow
+        cfg = config_from_args(args, overrides)
+        trainer, data_dir = follow(inp, out, cfg, FollowOptions(after_iterations=args.after), log,
+                                   on_step=feed.on_step)
+        scene = trainer.scene
     else:
-        cfg = make_config(args.method, **overrides)
-        if args.max_gaussians:
-            cfg.densify.max_gaussians = args.max_gaussians
-        cfg.densify.auto_stop = args.auto_budget
-        trainer = Trainer(cfg, scene, out)
+        data_dir = inp
+        if kind == "session":
+            from recon.prepare import prepare_session
+            data_dir = out / "data"
+            if not (data_dir / "transforms.json").exists():
+                prepare_session(inp, data_dir)
+        scene = Scene(load_dataset(data_dir))
+        trainer = make_trainer(args, scene, out, overrides)
     (out / "config.json").write_text(json.dumps(config_to_dict(trainer.cfg), indent=2))
     (out / "scene.json").write_text(json.dumps(scene_facts(scene, data_dir), indent=2))
-    trainer.train()
+    if not args.follow:
+        trainer.train(on_step=feed.on_step)
+    feed.publish_status(trainer, state="finishing")
     summary = finish(trainer, out, data_dir)
+    feed.finish(trainer)
     print(json.dumps(summary["metrics"], indent=2))
     print(f"{trainer.model.num_gaussians} Gaussians {summary['gaussians_per_role']}, "
           f"{summary['model_bytes'] / 1e6:.1f} MB, trained {summary['train_seconds']:.0f} s -> {out}")
@@ -160,17 +228,26 @@ def register(sub) -> None:
                "  recon simulate data/default --frames 40 --size 160x120\n"
                "  recon run data/default --out runs/dtg --minutes 10\n"
                "  recon run data/default --method ed3dgs-thermal --out runs/ed-th --iterations 2000\n"
-               "  recon run data/default --out runs/dtg --resume      # continue from the last checkpoint")
-    p.add_argument("input", metavar="DATASET", help="prepared dataset folder (with transforms.json)")
+               "  recon run data/default --out runs/dtg --resume      # continue from the last checkpoint\n"
+               "  recon run sessions/s1 --out runs/s1                 # a rig session: recon prepare, then train\n"
+               "  rig capture --duration 60 --out sessions/live &\n"
+               "  recon run sessions/live --follow --out runs/live    # train while it captures")
+    p.add_argument("input", metavar="DATASET_OR_SESSION",
+                   help="prepared dataset folder (transforms.json) or rig session (session.json; "
+                        "prepared into OUT/data with `recon prepare` first)")
     p.add_argument("--method", default="dtg", choices=list(METHODS),
                    help="dtg (full) or a baseline/ablation of the paper's Table 3 (default: dtg)")
     p.add_argument("--out", required=True, help="run folder (created)")
     p.add_argument("--iterations", type=int, help="iterations (default 3000 unless --minutes)")
     p.add_argument("--minutes", type=float, help="wall-clock budget; the schedule is stretched to fit it")
     p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoints/latest.pt")
-    p.add_argument("--max-gaussians", type=int, help="Gaussian budget (default 60000)")
+    p.add_argument("--max-gaussians", type=int, help="Gaussian budget (default: 0.5 per pixel of a training image, within 5k..100k)")
     p.add_argument("--auto-budget", action="store_true",
                    help="stop adding Gaussians when held-out PSNR stops improving")
+    p.add_argument("--follow", action="store_true",
+                   help="train while `rig capture` is still writing SESSION; stop --after iterations after it ends")
+    p.add_argument("--after", type=int, default=1500, help="with --follow: iterations after capture ends (default 1500)")
     p.add_argument("--seed", type=int)
     p.add_argument("--threads", type=int, help="CPU threads (default: all)")
+    add_serve_arguments(p)
     p.set_defaults(func=run)

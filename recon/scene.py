@@ -44,8 +44,12 @@ class View:
 
 
 class Scene:
-    def __init__(self, dataset: Dataset):
+    """time_of(frame) -> training time; default the dataset's normalised `time`. Live training
+    (`recon.follow`) passes timestamp_s / horizon so times stay put while the capture grows."""
+
+    def __init__(self, dataset: Dataset, time_of=None):
         self.dataset = dataset
+        self.time_of = time_of or (lambda frame: float(frame.time))
         self.k_min, self.k_max = (float(v) for v in dataset.thermal_range_k)
         self.train = {m: [self._view(f) for f in dataset.split(m, "train")] for m in ("rgb", "thermal")}
         self.test = {m: [self._view(f) for f in dataset.split(m, "test")] for m in ("rgb", "thermal")}
@@ -55,9 +59,8 @@ class Scene:
             for v in views:
                 self._by_time[m].setdefault(v.time, []).append(v)
 
-    @staticmethod
-    def _view(frame: Frame) -> View:
-        return View(frame, Camera.of_frame(frame), float(frame.time))
+    def _view(self, frame: Frame) -> View:
+        return View(frame, Camera.of_frame(frame), self.time_of(frame))
 
     def modalities(self) -> tuple[str, ...]:
         return tuple(m for m in ("rgb", "thermal") if self.train[m])

@@ -65,6 +65,18 @@ class TimeEmbedding(nn.Module):
         fine = resample_rows(self.fine, self.fine_rows_at(progress))
         return torch.cat([lerp_rows(self.coarse, t), lerp_rows(fine, t)])
 
+    @torch.no_grad()
+    def extended(self, factor: int) -> dict[str, torch.Tensor]:
+        """Tables for a time span `factor` times longer, rows at the same absolute times: the old
+        rows are kept as they are (nothing learned is lost) and the new ones start as copies of
+        the last row. -> {"coarse": (f(Rc-1)+1, D/2), "fine": (f(Rf-1)+1, D/2)}"""
+        out = {}
+        for name in ("coarse", "fine"):
+            table = getattr(self, name)
+            extra = (factor - 1) * (table.shape[0] - 1)
+            out[name] = torch.cat([table, table[-1:].expand(extra, -1)])
+        return out
+
     def temporal_smoothness(self) -> torch.Tensor:
         """Mean squared second difference over rows of both tables."""
         terms = []

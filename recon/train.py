@@ -89,6 +89,9 @@ class Trainer:
         self.model = model if model is not None else self._init_model()
         check_params(cfg.model, dict(self.model.gaussians))
         self.optimizer = self._build_optimizer()
+        if not cfg.densify.max_gaussians:
+            v = next(iter(scene.train[cfg.model.modalities[0]]))
+            cfg.densify.max_gaussians = int(min(max(0.5 * v.camera.width * v.camera.height, 5000), 100_000))
         self.strategy = Strategy(cfg.densify, cfg.model.modalities, self.extent, self.gen)
         self.smoothness = EmbeddingSmoothness(cfg.loss.embedding_knn, cfg.loss.embedding_knn_sample,
                                               cfg.loss.embedding_knn_falloff, self.extent)
@@ -98,6 +101,7 @@ class Trainer:
         self.best_holdout = -math.inf
         self.rounds_without_gain = 0
         self.holdout = self._holdout_views()
+        self.progress_fn = None    # live training (recon.follow) drives the schedule itself
 
     # ------------------------------------------------------------------ set-up
     def _init_model(self) -> DTGModel:
@@ -161,8 +165,34 @@ class Trainer:
                 out[m] = [min(views, key=lambda v: abs(v.time - 0.5))] if views else []
         return out
 
+    def replace_scene(self, scene: Scene) -> None:
+        """Continue on a grown scene (live training): same model, optimizer and statistics; new
+        frames and time steps. The scene extent, hence step sizes, stays that of the first scene."""
+        self.scene = scene
+        self.holdout = self._holdout_views()
+
+    @torch.no_grad()
+    def extend_time(self, factor: int) -> None:
+        """Make the time embedding cover a `factor` times longer span without losing what it
+        learned (TimeEmbedding.extended); its Adam moments are padded with zeros."""
+        te = self.model.time_embedding
+        new = te.extended(factor)
+        group = next(g for g in self.optimizer.param_groups if g["name"] == "time_embedding")
+        for name, table in new.items():
+            old = getattr(te, name)
+            param = torch.nn.Parameter(table.clone())
+            state = self.optimizer.state.pop(old, {})
+            group["params"] = [param if p is old else p for p in group["params"]]
+            if state:
+                pad = lambda v: torch.cat([v, v.new_zeros(table.shape[0] - v.shape[0], *v.shape[1:])])  # noqa: E731
+                self.optimizer.state[param] = {k: (pad(v) if torch.is_tensor(v) and v.dim() == 2 else v)
+                                               for k, v in state.items()}
+            setattr(te, name, param)
+
     # ------------------------------------------------------------------ schedule
     def progress(self) -> float:
+        if self.progress_fn is not None:
+            return self.progress_fn(self)
         if self.cfg.minutes:
             return min(self.elapsed / (60.0 * self.cfg.minutes), 1.0)
         return min(self.iteration / max(self.cfg.iterations, 1), 1.0)
@@ -214,8 +244,11 @@ class Trainer:
                 stats["kl"] = float(kl.detach())
         elif self.cfg.model.routing and routing.phase(self.cfg.routing, p) == "frozen":
             mask = inference_masks(self.model)[modality]
-        image, out, g = render(self.model, modality, t, view.camera, p,
-                               sh_degree=self.active_sh_degree(modality, p), mask=mask, rgb_geometry=rgb_geometry)
+        background = None
+        if modality == "rgb" and float(torch.rand((), generator=self.gen)) < self.cfg.loss.random_background_rgb:
+            background = torch.rand(self.model.backgrounds[modality].shape, generator=self.gen)
+        image, out, g = render(self.model, modality, t, view.camera, p, sh_degree=self.active_sh_degree(modality, p),
+                               mask=mask, rgb_geometry=rgb_geometry, background=background)
         if modality == "rgb":
             rec = rgb_loss(image, target, self.cfg.loss.rgb_dssim)
         else:
@@ -303,35 +336,45 @@ class Trainer:
         return {"shared" if len(self.cfg.model.modalities) > 1 else self.cfg.model.modalities[0]: self.model.num_gaussians}
 
     # ------------------------------------------------------------------ loop
-    def train(self, on_eval=None) -> list[dict]:
-        """Run to the end of the budget with a progress line, periodic evaluation and checkpoints."""
+    def train(self, on_eval=None, on_step=None) -> list[dict]:
+        """Run to the end of the budget with a progress line, periodic evaluation and checkpoints.
+        on_step(trainer, stats) after every iteration (the live status feed)."""
+        self.announce()
+        while not self.done():
+            stats = self.tick(on_eval)
+            if on_step:
+                on_step(self, stats)
+        sys.stderr.write("\n")
+        return self.history
+
+    def announce(self) -> None:
         total = f"{self.cfg.minutes:g} min" if self.cfg.minutes else f"{self.cfg.iterations} it"
         self.log(f"training {self.cfg.method}: {self.model.num_gaussians} Gaussians, "
                  f"{len(self.scene.times)} time steps, budget {total}, scene extent {self.extent:.3f}")
-        window: list[float] = []
-        last = {}
-        while not self.done():
-            t0 = time.perf_counter()
-            stats = self.step()
-            window = (window + [time.perf_counter() - t0])[-50:]
-            last.update({k: v for k, v in stats.items() if k.startswith("loss_")})
-            it = self.iteration
-            if it % self.cfg.eval_every == 0 or self.done():
-                scores = self.holdout_psnr()
-                self._auto_budget(scores)
-                record = {"iteration": it, "elapsed_s": round(self.elapsed, 3), "progress": self.progress(),
-                          "gaussians": self.model.num_gaussians, "roles": self.counts(),
-                          **{f"psnr_{m}": round(v, 3) for m, v in scores.items()},
-                          **{k: round(v, 6) for k, v in last.items()}}
-                self.history.append(record)
-                if on_eval:
-                    on_eval(self, record)
-            if it % self.cfg.log_every == 0 or self.done():
-                self._print_progress(last, 1.0 / (sum(window) / len(window)))
-            if self.out_dir and (it % self.cfg.checkpoint_every == 0 or self.done()):
-                self.save_checkpoint(self.out_dir / "checkpoints" / "latest.pt")
-        sys.stderr.write("\n")
-        return self.history
+
+    def tick(self, on_eval=None) -> dict:
+        """One iteration plus, when due, held-out evaluation (on_eval(trainer, record) is called
+        with each history record), the progress line and a checkpoint."""
+        t0 = time.perf_counter()
+        stats = self.step()
+        self._window = (getattr(self, "_window", []) + [time.perf_counter() - t0])[-50:]
+        self._last = {**getattr(self, "_last", {}), **{k: v for k, v in stats.items() if k.startswith("loss_")}}
+        it = self.iteration
+        if it % self.cfg.eval_every == 0 or self.done():
+            scores = self.holdout_psnr()
+            self._auto_budget(scores)
+            record = {"iteration": it, "elapsed_s": round(self.elapsed, 3), "progress": self.progress(),
+                      "gaussians": self.model.num_gaussians, "roles": self.counts(),
+                      **{f"psnr_{m}": round(v, 3) for m, v in scores.items()},
+                      **{k: round(v, 6) for k, v in self._last.items()}}
+            self.history.append(record)
+            if on_eval:
+                on_eval(self, record)
+        if it % self.cfg.log_every == 0 or self.done():
+            self._print_progress(self._last, 1.0 / (sum(self._window) / len(self._window)))
+        if self.out_dir and (it % self.cfg.checkpoint_every == 0 or self.done()):
+            self.save_checkpoint(self.out_dir / "checkpoints" / "latest.pt")
+        return stats
 
     def _print_progress(self, losses: dict, its: float) -> None:
         p = self.progress()

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from server.cli_options import add_serve_arguments, serve_from_args
 from rig.cli_format import HelpFormatter
 from rig.drivers import flir
 from rig.drivers.gige import GvcpError, gvsp
@@ -385,6 +386,7 @@ def register(sub) -> None:
     p.add_argument("--no-sim-lamp", action="store_true",
                    help="simulated rig without its sync-box lamp: sync falls back to cross-correlation")
     p.add_argument("--quiet", action="store_true", help="no progress line")
+    add_serve_arguments(p)
     p.set_defaults(func=main)
 
 
@@ -398,12 +400,17 @@ def main(args) -> int:
                         sim_lamp=not args.no_sim_lamp, sim_scene=args.sim_scene, sim_variant=args.sim_variant,
                         sim_keyframe_hz=args.sim_keyframes, sim_render_scale=args.sim_render_scale,
                         progress=not args.quiet)
+    handle = None
     try:
         cap = Capture(cfg)
+        handle = serve_from_args(args, session_dir=cap.out)
         summary = cap.run()
     except (FileExistsError, NotADirectoryError, ValueError, OSError, SyncBoxError, GvcpError,
             GenicamXmlError) as exc:
         print(f"rig capture: {exc}", file=sys.stderr)
         return 2
+    finally:
+        if handle:
+            handle.stop()
     print(cap.out)
     return 1 if summary["stats"]["errors"] else 0

@@ -36,8 +36,12 @@ def encode_render(image: np.ndarray, modality: str, thermal_scale_k: float | Non
 def write_render(run_dir: str | Path, frame: Frame, image: np.ndarray,
                  thermal_scale_k: float | None = None) -> Path:
     """Store one render (RGB float in [0, 1] or thermal kelvin) where `recon eval` looks."""
+    return write_render_pixels(run_dir, frame, encode_render(image, frame.modality, thermal_scale_k))
+
+
+def write_render_pixels(run_dir: str | Path, frame: Frame, pixels: np.ndarray) -> Path:
+    """Store already-encoded render pixels (uint8 RGB or uint16 counts) where `recon eval` looks."""
     path = render_path(run_dir, frame).with_suffix(".png")
-    pixels = encode_render(image, frame.modality, thermal_scale_k)
     expected = (frame.height, frame.width)
     if pixels.shape[:2] != expected:
         raise RenderError(f"{path}: render is {pixels.shape[1]}x{pixels.shape[0]}, frame is "

@@ -1,0 +1,212 @@
+"""`recon run SESSION --follow`: train while `rig capture` is still appending to SESSION.
+
+Poses are re-solved, not frozen: every `refresh_s` seconds of new capture a background thread runs
+`recon prepare` on the frames committed so far (the session reader never exposes half-written
+frames) into RUN/live_data/vK, and aligns that reconstruction to the first one by a similarity
+fitted on the camera centres of frames both share, so the model's world frame never jumps. The
+trainer then continues on the grown scene (Trainer.replace_scene): same Gaussians, optimizer and
+statistics; densification keeps running.
+
+Time is capture seconds over a horizon (the planned duration when the session says it, else twice
+the span seen), not the dataset's normalised time, which would shift every frame as the capture
+grows. When the capture outgrows the horizon, the horizon doubles and the time embedding is
+extended with its learned rows kept where they were (Trainer.extend_time).
+
+Schedule: while capturing, progress rises to `capture_progress` (routing learns with the early
+prior, densification on, learning rates high); once the capture is closed and its final
+reconstruction loaded, progress runs to 1 over `after_iterations` (specialisation, routing
+freeze, decay), then the run finishes like `recon run`.
+"""
+from __future__ import annotations
+
+import json
+import queue
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from recon.config import TrainConfig
+from recon.data import load_dataset
+from recon.data.ply import read_points_ply, write_points_ply
+from recon.scene import Scene
+from recon.train import Trainer
+from rig.session import open_session
+
+
+@dataclass
+class FollowOptions:
+    refresh_s: float = 15.0          # re-solve poses after this much new capture
+    after_iterations: int = 1500     # iterations after the capture ends
+    min_capture_s: float = 4.0       # wait for this much capture before the first reconstruction
+    steps_per_s: float = 1.5         # time steps picked per second of capture ...
+    max_steps: int = 120             # ... at most
+    capture_progress: float = 0.3    # schedule position held while capturing
+    warmup_iterations: int = 300     # iterations to reach it
+    poll_s: float = 1.0
+
+
+def session_span_s(session) -> float:
+    """Seconds of thermal capture committed so far."""
+    ns = [r["host_ns"] for r in session.thermal if "host_ns" in r]
+    return (max(ns) - min(ns)) / 1e9 if len(ns) > 1 else 0.0
+
+
+def planned_duration_s(session) -> float | None:
+    meta = session.meta or {}
+    for key in ("duration_s", "planned_duration_s"):
+        if isinstance(meta.get(key), (int, float)) and meta[key] > 0:
+            return float(meta[key])
+    return None
+
+
+# ------------------------------------------------------------------ keeping one world frame
+def similarity(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Umeyama: s, R, t minimising |dst - (s R src + t)|. src, dst: (M, 3), M >= 3."""
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    a, b = src - mu_s, dst - mu_d
+    u, sig, vt = np.linalg.svd(b.T @ a / len(src))
+    d = np.eye(3)
+    d[2, 2] = np.sign(np.linalg.det(u @ vt))
+    r = u @ d @ vt
+    s = float(np.trace(np.diag(sig) @ d) / max((a ** 2).sum() / len(src), 1e-12))
+    return s, r, mu_d - s * r @ mu_s
+
+
+def align_dataset(data_dir: Path, reference: dict[float, np.ndarray]) -> dict[float, np.ndarray]:
+    """Rewrite data_dir's poses and points into the reference frame. reference: RGB camera
+    centres by timestamp_s of the first reconstruction. Returns this dataset's centres (aligned)."""
+    path = data_dir / "transforms.json"
+    meta = json.loads(path.read_text())
+    rgb = {round(f["timestamp_s"], 3): np.asarray(f["transform_matrix"])[:3, 3]
+           for f in meta["frames"] if f["modality"] == "rgb"}
+    if reference:
+        keys = [k for k in rgb if k in reference]
+        if len(keys) < 3:
+            raise RuntimeError(f"{data_dir}: only {len(keys)} frames in common with the first reconstruction")
+        s, r, t = similarity(np.stack([rgb[k] for k in keys]), np.stack([reference[k] for k in keys]))
+        for f in meta["frames"]:
+            m = np.asarray(f["transform_matrix"], dtype=np.float64)
+            m[:3, :3] = r @ m[:3, :3]
+            m[:3, 3] = s * r @ m[:3, 3] + t
+            f["transform_matrix"] = m.tolist()
+        ply = data_dir / meta.get("ply_file_path", "points3d.ply")
+        if ply.exists():
+            xyz, col = read_points_ply(ply)
+            write_points_ply(ply, s * xyz @ r.T + t, col)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(meta, indent=1))
+        tmp.replace(path)
+        rgb = {k: s * r @ v + t for k, v in rgb.items()}
+    return rgb
+
+
+class Reconstructor(threading.Thread):
+    """Background `recon prepare` of the growing session; finished datasets go to `ready`."""
+
+    def __init__(self, session_dir: Path, out: Path, opts: FollowOptions, log, prepare_options: dict):
+        super().__init__(daemon=True)
+        self.session_dir, self.out, self.opts, self.log = session_dir, out, opts, log
+        self.prepare_options = prepare_options
+        self.ready: queue.Queue = queue.Queue()
+        self.stop_event = threading.Event()
+        self.reference: dict[float, np.ndarray] = {}
+        self.final = False
+
+    def run(self) -> None:
+        from recon.prepare import PrepareError, prepare_session
+
+        session = open_session(self.session_dir)
+        done_span, version = -1.0, 0
+        while not self.stop_event.is_set():
+            session.refresh()
+            span, closed = session_span_s(session), session.closed
+            due = span >= self.opts.min_capture_s and (closed or span - done_span >= self.opts.refresh_s
+                                                       or done_span < 0)
+            if not due or (closed and done_span >= span):
+                if closed and done_span >= span:
+                    return
+                self.stop_event.wait(self.opts.poll_s)
+                continue
+            steps = int(min(self.opts.max_steps, max(8, span * self.opts.steps_per_s)))
+            target = self.out / f"v{version:03d}"
+            t0 = time.perf_counter()
+            try:
+                prepare_session(self.session_dir, target, progress=None, frames=steps, **self.prepare_options)
+                centres = align_dataset(target, self.reference)
+                self.reference = self.reference or centres
+                self.ready.put((target, closed, span))
+                self.log(f"live poses: v{version} from {span:.0f} s of capture, {steps} steps, "
+                         f"{time.perf_counter() - t0:.0f} s{' (final)' if closed else ''}")
+                version += 1
+            except (PrepareError, RuntimeError) as exc:
+                self.log(f"live poses: not yet ({exc}); retrying with more capture")
+                if closed:
+                    self.ready.put((None, True, span))
+                    return
+            done_span = span
+
+
+def follow(session_dir: Path, run_dir: Path, cfg: TrainConfig, opts: FollowOptions, log,
+           prepare_options: dict | None = None, on_eval=None, on_step=None) -> tuple[Trainer, Path]:
+    """Train while the session grows; return the trainer and the final dataset folder."""
+    recon_thread = Reconstructor(session_dir, run_dir / "live_data", opts, log, prepare_options or {})
+    recon_thread.start()
+    session = open_session(session_dir)
+    horizon = planned_duration_s(session)
+    trainer, data_dir, closed, end_iteration = None, None, False, None
+
+    def scene_for(path: Path) -> Scene:
+        return Scene(load_dataset(path), time_of=lambda f: min(float(f.timestamp_s) / horizon, 1.0))
+
+    def schedule(tr: Trainer) -> float:
+        p_cap = opts.capture_progress
+        if end_iteration is None:
+            return min(p_cap, p_cap * tr.iteration / max(opts.warmup_iterations, 1))
+        return min(1.0, p_cap + (1 - p_cap) * (tr.iteration - end_iteration) / max(opts.after_iterations, 1))
+
+    try:
+        while True:
+            try:
+                path, is_final, span = recon_thread.ready.get(timeout=0.0 if trainer else opts.poll_s)
+            except queue.Empty:
+                path = None
+                is_final = False
+            else:
+                if path is None and trainer is None:
+                    raise RuntimeError(f"{session_dir}: the capture ended before poses could be recovered")
+                if path is not None:
+                    horizon = horizon or 2.0 * max(span, 1.0)
+                    while span > horizon * 1.001:
+                        horizon *= 2
+                        if trainer:
+                            trainer.extend_time(2)
+                            log(f"live: capture outgrew the time horizon; now {horizon:.0f} s")
+                    scene = scene_for(path)
+                    data_dir = path
+                    if trainer is None:
+                        trainer = Trainer(cfg, scene, run_dir, log=log)
+                        trainer.progress_fn = schedule
+                        trainer.announce()
+                    else:
+                        trainer.replace_scene(scene)
+                        log(f"live: {len(scene.times)} time steps, {trainer.model.num_gaussians} Gaussians, "
+                            f"iteration {trainer.iteration}")
+                if is_final:
+                    closed = True
+                    end_iteration = trainer.iteration
+                    log(f"live: capture finished; {opts.after_iterations} more iterations")
+            if trainer is None:
+                continue
+            stats = trainer.tick(on_eval)
+            if on_step:
+                on_step(trainer, stats)
+            if closed and trainer.done():
+                break
+    finally:
+        recon_thread.stop_event.set()
+    if trainer is not None:
+        trainer.save_checkpoint(run_dir / "checkpoints" / "latest.pt")
+    return trainer, data_dir

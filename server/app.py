@@ -1,0 +1,161 @@
+"""`serve()`: the status server in a background thread of the calling process.
+
+    handle = serve("127.0.0.1", 8765, run_dir="runs/live", session_dir="sessions/s1")
+    print(handle.url)      # http://127.0.0.1:8765/
+    ...
+    handle.stop()          # or: with serve(...) as handle: ...
+
+Either folder may be None (a capture without training, or training without a session) or may
+not exist yet: endpoints answer 503 with {} until something is published.
+"""
+from __future__ import annotations
+
+import socket
+import sys
+import threading
+from http.server import ThreadingHTTPServer
+from importlib import resources
+from pathlib import Path
+
+from server.handler import StatusHandler
+from server.run_reader import RunReader, is_render_name
+from server.session_monitor import SessionMonitor
+
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 8765
+MAX_CONNECTIONS = 32          # each connection holds a thread; more are refused at once
+
+
+class App:
+    """What the handler serves: the page, the JSON endpoints and render files."""
+
+    def __init__(self, run_dir: Path | None, session_dir: Path | None, session_poll_s: float):
+        self.page = resources.files("server").joinpath("page.html").read_bytes()
+        self.run = RunReader(run_dir) if run_dir else None
+        self.session = SessionMonitor(session_dir, session_poll_s) if session_dir else None
+
+    def api(self, name: str, max_points: int):
+        """JSON value of /api/NAME; None = nothing published yet; NotImplemented = no such endpoint."""
+        run, ses = self.run, self.session
+        table = {
+            "status": lambda: run and run.status(),
+            "metrics": lambda: run and run.metrics(max_points),
+            "gaussians": lambda: run and run.gaussians(max_points),
+            "renders": lambda: run and run.renders(),
+            "capture": lambda: ses and ses.capture(),
+            "sync": lambda: ses and ses.sync(),
+            "config": lambda: {"run": str(run.run_dir) if run else None,
+                               "session": str(ses.path) if ses else None},
+        }
+        return table[name]() if name in table else NotImplemented
+
+    def render_file(self, set_name: str, file_name: str):
+        if self.run is None:
+            return None if is_render_name(set_name, file_name) else NotImplemented
+        return self.run.render_file(set_name, file_name)
+
+    def close(self) -> None:
+        if self.session:
+            self.session.stop()
+
+
+class StatusServer(ThreadingHTTPServer):
+    daemon_threads = True
+    block_on_close = False
+    request_queue_size = 64          # listen backlog: a burst of connects is not left to SYN retries
+
+    def __init__(self, address, app: App, verbose: bool = False):
+        self.app, self.verbose = app, verbose
+        self.counts = {"requests": 0, "disconnects": 0, "refused": 0, "errors": 0}
+        self._slots = threading.BoundedSemaphore(MAX_CONNECTIONS)
+        self._open: set[socket.socket] = set()
+        self._lock = threading.Lock()
+        self.address_family = socket.AF_INET6 if ":" in address[0] else socket.AF_INET
+        super().__init__(address, StatusHandler)
+
+    def count(self, key: str) -> None:
+        with self._lock:
+            self.counts[key] += 1
+
+    def process_request(self, request, client_address) -> None:
+        if not self._slots.acquire(blocking=False):
+            self.count("refused")
+            try:
+                request.sendall(b"HTTP/1.1 503 Service Unavailable\r\nContent-Length: 0\r\n"
+                                b"Retry-After: 1\r\nConnection: close\r\n\r\n")
+            except OSError:
+                pass
+            self.shutdown_request(request)
+            return
+        with self._lock:
+            self._open.add(request)
+        super().process_request(request, client_address)
+
+    def process_request_thread(self, request, client_address) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            with self._lock:
+                self._open.discard(request)
+            self._slots.release()
+
+    def handle_error(self, request, client_address) -> None:
+        self.count("errors")
+        exc = sys.exc_info()[1]
+        print(f"server: error answering {client_address[0]}: {type(exc).__name__}: {exc}", file=sys.stderr)
+
+    def close_connections(self) -> None:
+        """End kept-alive connections so no handler thread outlives stop()."""
+        with self._lock:
+            sockets = list(self._open)
+        for s in sockets:
+            try:
+                s.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+
+
+class ServerHandle:
+    """A running server: .url, .host, .port, .counts (requests, disconnects, refused, errors), .stop()."""
+
+    def __init__(self, httpd: StatusServer, thread: threading.Thread):
+        self._httpd, self._thread = httpd, thread
+        self.host, self.port = httpd.server_address[:2]
+        shown = f"[{self.host}]" if ":" in self.host else self.host
+        self.url = f"http://{shown}:{self.port}/"
+
+    @property
+    def counts(self) -> dict:
+        return dict(self._httpd.counts)
+
+    def stop(self) -> None:
+        """Stop accepting, close open connections and the session monitor; idempotent."""
+        if self._thread.is_alive():
+            self._httpd.shutdown()
+            self._thread.join()
+        self._httpd.close_connections()
+        self._httpd.server_close()
+        self._httpd.app.close()
+
+    def __enter__(self) -> "ServerHandle":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def serve(host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, run_dir: str | Path | None = None,
+          session_dir: str | Path | None = None, verbose: bool = False,
+          session_poll_s: float = 1.0) -> ServerHandle:
+    """Start the status server in a daemon thread and return its handle (port 0: any free port).
+    Raises OSError if the address cannot be bound (e.g. the port is taken)."""
+    app = App(Path(run_dir) if run_dir else None, Path(session_dir) if session_dir else None, session_poll_s)
+    try:
+        httpd = StatusServer((host, port), app, verbose)
+    except OSError:
+        app.close()
+        raise
+    thread = threading.Thread(target=httpd.serve_forever, kwargs={"poll_interval": 0.25},
+                              name=f"status-server:{port}", daemon=True)
+    thread.start()
+    return ServerHandle(httpd, thread)
