@@ -1,50 +1,67 @@
-"""`recon demo`: the main job on the embedded default, no hardware and no data needed.
+"""`recon demo`: the appliance in one command, on the embedded simulated rig (no hardware).
 
-Simulates the default table-top scene seen by two handheld RGB + thermal rigs, trains Dynamic
-Thermal Gaussians on rig 0 for a short wall-clock budget, renders rig 1's held-out views, grades
-them and prints where everything went.
+1. `rig capture --duration D` records the simulated rig (FLIR-like GigE thermal stream, phone
+   videos dropped in a folder, sync-box lamp) into OUT/session, in its own process;
+2. `recon run OUT/session --follow --serve` trains Dynamic Thermal Gaussians while the capture
+   grows (poses re-solved with pycolmap as frames arrive) and serves the status page;
+3. when the capture ends it trains --after more iterations, renders the held-out views, grades
+   them and exports the model, then prints where everything is.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import subprocess
+import sys
 import time
 from pathlib import Path
-
-from recon.data.simulate import SimulateConfig, simulate_dataset
 
 
 def demo(args: argparse.Namespace) -> int:
     out = Path(args.out)
-    data = out / "data"
+    session, run_dir = out / "session", out / "run"
+    if session.exists() or run_dir.exists():
+        raise SystemExit(f"{out}: holds an earlier demo; remove it or pass --out NEW_FOLDER")
+    out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    if not (data / "transforms.json").exists():
-        print(f"[1/2] simulating the default scene: {args.frames} time steps at {args.size}, two rigs -> {data}")
-        w, h = (int(v) for v in args.size.lower().split("x"))
-        simulate_dataset(data, SimulateConfig(variant="default", frames=args.frames, width=w, height=h, seed=0))
-    else:
-        print(f"[1/2] reusing {data}")
-    print(f"[2/2] training dtg for {args.minutes:g} min on rig 0, testing on rig 1 -> {out / 'run'}")
-    from recon.run import register  # the same path as `recon run`
-    parser = argparse.ArgumentParser()
-    register(parser.add_subparsers())
-    run_args = parser.parse_args(["run", str(data), "--out", str(out / "run"), "--minutes", str(args.minutes)])
-    code = run_args.func(run_args)
-    summary = json.loads((out / "run" / "metrics.json").read_text())
-    print(f"\ndemo finished in {time.perf_counter() - t0:.0f} s. Look at:\n"
-          f"  {out / 'run' / 'eval' / 'metrics.md'}   metrics per test frame\n"
-          f"  {out / 'run' / 'strips'}/               ground truth | render | error (thermal in deg C)\n"
-          f"  {out / 'run' / 'animation.gif'}         a test view across time\n"
-          f"  recon render {out / 'run'} --time 0.5 --out mid   # any time, any pose\n"
-          f"thermal MAE {summary['metrics'].get('thermal', {}).get('mae_k', float('nan')):.2f} K")
+    print(f"[1/2] simulated capture, {args.duration:g} s -> {session}", flush=True)
+    capture = subprocess.Popen(
+        [sys.executable, "-m", "rig", "capture", "--duration", str(args.duration), "--out", str(session),
+         "--quiet"], stdout=subprocess.DEVNULL, stderr=open(out / "capture.log", "w"))
+    try:
+        while not (session / "session.json").exists():
+            if capture.poll() is not None:
+                raise SystemExit(f"rig capture failed (exit {capture.returncode}); see {out / 'capture.log'}")
+            time.sleep(0.2)
+        print(f"[2/2] live training while capturing -> {run_dir}", flush=True)
+        run_argv = ["run", str(session), "--follow", "--out", str(run_dir), "--after", str(args.after)]
+        if args.serve:
+            run_argv += ["--serve", "--host", args.host, "--port", str(args.port)]
+        from recon.cli import main as recon_main
+        code = recon_main(run_argv)
+    finally:
+        if capture.poll() is None:
+            capture.wait(timeout=args.duration + 60)
+    summary = json.loads((run_dir / "metrics.json").read_text())
+    thermal = summary["metrics"].get("thermal", {})
+    rgb = summary["metrics"].get("rgb", {})
+    print(f"\ndemo finished in {time.perf_counter() - t0:.0f} s: held-out RGB {rgb.get('psnr', float('nan')):.2f} dB, "
+          f"thermal {thermal.get('psnr', float('nan')):.2f} dB, MAE {thermal.get('mae_k', float('nan')):.2f} K\n"
+          f"  {run_dir / 'eval' / 'metrics.md'}   metrics per held-out frame\n"
+          f"  {run_dir / 'strips'}/               ground truth | render | error (thermal in deg C)\n"
+          f"  {run_dir / 'animation.gif'}         a held-out view across time\n"
+          f"  recon render {run_dir} --time 0.5 --out mid   # any time, any pose\n"
+          f"  python -m server --run {run_dir} --session {session}   # the status page again")
     return code
 
 
 def register(sub) -> None:
-    p = sub.add_parser("demo", help="simulate a scene, train DTG briefly, grade it (no hardware needed)",
+    p = sub.add_parser("demo", help="the appliance on the simulated rig: capture + live training + status page",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default="runs/demo", help="output folder (default: runs/demo)")
-    p.add_argument("--minutes", type=float, default=2.0, help="training budget (default: 2)")
-    p.add_argument("--frames", type=int, default=24, help="simulated time steps (default: 24)")
-    p.add_argument("--size", default="128x96", help="image size WxH (default: 128x96)")
+    p.add_argument("--duration", type=float, default=60.0, help="capture seconds (default: 60)")
+    p.add_argument("--after", type=int, default=1500, help="iterations after the capture ends (default: 1500)")
+    p.add_argument("--no-serve", dest="serve", action="store_false", help="no status page")
+    p.add_argument("--host", default="127.0.0.1", help="status page address (default: 127.0.0.1)")
+    p.add_argument("--port", type=int, default=8765, help="status page port (default: 8765)")
     p.set_defaults(func=demo)

@@ -2,8 +2,8 @@
 
 Poses are re-solved, not frozen: every `refresh_s` seconds of new capture a background thread runs
 `recon prepare` on the frames committed so far (the session reader never exposes half-written
-frames) into RUN/live_data/vK, and aligns that reconstruction to the first one by a similarity
-fitted on the camera centres of frames both share, so the model's world frame never jumps. The
+frames) into RUN/live_data/vK, and aligns that reconstruction to the previous one by a similarity fitted
+on the camera path where they overlap, so the model's world frame never jumps. The
 trainer then continues on the grown scene (Trainer.replace_scene): same Gaussians, optimizer and
 statistics; densification keeps running.
 
@@ -41,8 +41,8 @@ class FollowOptions:
     refresh_s: float = 15.0          # re-solve poses after this much new capture
     after_iterations: int = 1500     # iterations after the capture ends
     min_capture_s: float = 4.0       # wait for this much capture before the first reconstruction
-    steps_per_s: float = 1.5         # time steps picked per second of capture ...
-    max_steps: int = 120             # ... at most
+    steps_per_s: float = 1.0         # time steps picked per second of capture ...
+    max_steps: int = 90              # ... at most (pycolmap takes ~1 s per 640x480 frame here)
     capture_progress: float = 0.3    # schedule position held while capturing
     warmup_iterations: int = 300     # iterations to reach it
     poll_s: float = 1.0
@@ -75,32 +75,41 @@ def similarity(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.
     return s, r, mu_d - s * r @ mu_s
 
 
-def align_dataset(data_dir: Path, reference: dict[float, np.ndarray]) -> dict[float, np.ndarray]:
-    """Rewrite data_dir's poses and points into the reference frame. reference: RGB camera
-    centres by timestamp_s of the first reconstruction. Returns this dataset's centres (aligned)."""
+def interpolate_centres(reference: tuple[np.ndarray, np.ndarray], times: np.ndarray) -> np.ndarray:
+    """Camera centres of the reference path (times (M,), centres (M, 3)) at `times` (K,)."""
+    ts, cs = reference
+    return np.stack([np.interp(times, ts, cs[:, i]) for i in range(3)], axis=1)
+
+
+def align_dataset(data_dir: Path, reference: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray]:
+    """Rewrite data_dir's poses and points into the reference frame. reference: the RGB camera
+    path (timestamps (M,), centres (M, 3)) of the previous reconstruction, already in the world
+    frame; the new frames that fall inside its time span are matched to it by interpolation
+    (each re-run of SfM picks its own frames). Returns this dataset's path, aligned."""
     path = data_dir / "transforms.json"
     meta = json.loads(path.read_text())
-    rgb = {round(f["timestamp_s"], 3): np.asarray(f["transform_matrix"])[:3, 3]
-           for f in meta["frames"] if f["modality"] == "rgb"}
-    if reference:
-        keys = [k for k in rgb if k in reference]
-        if len(keys) < 3:
-            raise RuntimeError(f"{data_dir}: only {len(keys)} frames in common with the first reconstruction")
-        s, r, t = similarity(np.stack([rgb[k] for k in keys]), np.stack([reference[k] for k in keys]))
-        for f in meta["frames"]:
-            m = np.asarray(f["transform_matrix"], dtype=np.float64)
-            m[:3, :3] = r @ m[:3, :3]
-            m[:3, 3] = s * r @ m[:3, 3] + t
-            f["transform_matrix"] = m.tolist()
-        ply = data_dir / meta.get("ply_file_path", "points3d.ply")
-        if ply.exists():
-            xyz, col = read_points_ply(ply)
-            write_points_ply(ply, s * xyz @ r.T + t, col)
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(meta, indent=1))
-        tmp.replace(path)
-        rgb = {k: s * r @ v + t for k, v in rgb.items()}
-    return rgb
+    rgb = sorted((float(f["timestamp_s"]), np.asarray(f["transform_matrix"])[:3, 3])
+                 for f in meta["frames"] if f["modality"] == "rgb")
+    times, centres = np.array([t for t, _ in rgb]), np.stack([c for _, c in rgb])
+    if reference is None:
+        return times, centres
+    inside = (times >= reference[0][0]) & (times <= reference[0][-1])
+    if inside.sum() < 3:
+        raise RuntimeError(f"{data_dir}: only {int(inside.sum())} frames overlap the previous reconstruction")
+    s, r, t = similarity(centres[inside], interpolate_centres(reference, times[inside]))
+    for f in meta["frames"]:
+        m = np.asarray(f["transform_matrix"], dtype=np.float64)
+        m[:3, :3] = r @ m[:3, :3]
+        m[:3, 3] = s * r @ m[:3, 3] + t
+        f["transform_matrix"] = m.tolist()
+    ply = data_dir / meta.get("ply_file_path", "points3d.ply")
+    if ply.exists():
+        xyz, col = read_points_ply(ply)
+        write_points_ply(ply, s * xyz @ r.T + t, col)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(meta, indent=1))
+    tmp.replace(path)
+    return times, s * centres @ r.T + t
 
 
 class Reconstructor(threading.Thread):
@@ -112,7 +121,7 @@ class Reconstructor(threading.Thread):
         self.prepare_options = prepare_options
         self.ready: queue.Queue = queue.Queue()
         self.stop_event = threading.Event()
-        self.reference: dict[float, np.ndarray] = {}
+        self.reference: tuple[np.ndarray, np.ndarray] | None = None
         self.final = False
 
     def run(self) -> None:
@@ -135,8 +144,7 @@ class Reconstructor(threading.Thread):
             t0 = time.perf_counter()
             try:
                 prepare_session(self.session_dir, target, progress=None, frames=steps, **self.prepare_options)
-                centres = align_dataset(target, self.reference)
-                self.reference = self.reference or centres
+                self.reference = align_dataset(target, self.reference)
                 self.ready.put((target, closed, span))
                 self.log(f"live poses: v{version} from {span:.0f} s of capture, {steps} steps, "
                          f"{time.perf_counter() - t0:.0f} s{' (final)' if closed else ''}")

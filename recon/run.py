@@ -195,7 +195,7 @@ def train_and_finish(args, inp: Path, out: Path, kind: str, overrides: dict, fee
         from recon.follow import FollowOptions, follow
         cfg = config_from_args(args, overrides)
         trainer, data_dir = follow(inp, out, cfg, FollowOptions(after_iterations=args.after), log,
-                                   on_step=feed.on_step)
+                                   prepare_options={"downscale": args.downscale}, on_step=feed.on_step)
         scene = trainer.scene
     else:
         data_dir = inp
@@ -203,7 +203,7 @@ def train_and_finish(args, inp: Path, out: Path, kind: str, overrides: dict, fee
             from recon.prepare import prepare_session
             data_dir = out / "data"
             if not (data_dir / "transforms.json").exists():
-                prepare_session(inp, data_dir)
+                prepare_session(inp, data_dir, downscale=args.downscale)
         scene = Scene(load_dataset(data_dir))
         trainer = make_trainer(args, scene, out, overrides)
     (out / "config.json").write_text(json.dumps(config_to_dict(trainer.cfg), indent=2))
@@ -247,6 +247,8 @@ def register(sub) -> None:
     p.add_argument("--follow", action="store_true",
                    help="train while `rig capture` is still writing SESSION; stop --after iterations after it ends")
     p.add_argument("--after", type=int, default=1500, help="with --follow: iterations after capture ends (default 1500)")
+    p.add_argument("--downscale", type=int, default=4,
+                   help="a session's images are prepared at 1/N size (default 4: 640x480 thermal -> 160x120)")
     p.add_argument("--seed", type=int)
     p.add_argument("--threads", type=int, help="CPU threads (default: all)")
     add_serve_arguments(p)
