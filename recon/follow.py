@@ -56,7 +56,7 @@ def session_span_s(session) -> float:
 
 def planned_duration_s(session) -> float | None:
     meta = session.meta or {}
-    for key in ("duration_s", "planned_duration_s"):
+    for key in ("requested_duration_s", "duration_s", "planned_duration_s"):
         if isinstance(meta.get(key), (int, float)) and meta[key] > 0:
             return float(meta[key])
     return None

@@ -153,9 +153,10 @@ def load_calibration(path: str | Path) -> RigCalibration:
 
 
 def simulated_calibration(session) -> RigCalibration | None:
-    """The simulator's true calibration recorded in a simulated session (None otherwise)."""
+    """The simulator's true calibration recorded in a simulated session (None otherwise): in
+    session.json from the start of the capture, or in closed.json's sim_truth at its end."""
     truth = (session.summary or {}).get("sim_truth") or []
-    scene = next((t.get("scene") for t in truth if t.get("scene")), None)
+    scene = (session.meta or {}).get("sim_scene") or next((t.get("scene") for t in truth if t.get("scene")), None)
     if not scene or "thermal_from_rgb" not in scene:
         return None
     lens = [Lens(**{k: v for k, v in scene[key].items()}) for key in ("rgb_intrinsics", "thermal_intrinsics")]

@@ -119,6 +119,9 @@ class Capture:
             now = time.monotonic()
             self.sim_camera = SimThermalCamera(self.scene, ir_format=cfg.ir_format, scene_t0=now,
                                                clock=SimClock(5000.0, 20.0, now), seed=cfg.seed)
+            if hasattr(self.scene, "describe"):
+                # the simulated rig's "factory calibration": what a real rig gets from `rig calibrate`
+                meta["sim_scene"] = self.scene.describe()
             meta["thermal"] = {"source": "simulated", "tick_hz": self.sim_camera.tick_hz,
                                "device": {"model": "simulated FLIR A700"}}
         if cfg.phone_drop:
@@ -224,7 +227,10 @@ class Capture:
                 info = probe_video(path)
                 frames = [{"frame": f["frame"], "pts": f["pts"], "pts_s": f["pts_s"], "motion": f["motion"]}
                           for f in info.frames]
-                writer.add_rgb_file(path, frames, {"kind": "video", "host_ns": arrived, **info.file_record()})
+                record = {"kind": "video", "host_ns": arrived, **info.file_record()}
+                if self.sim_phone is not None:    # simulated rig: the file's truth, for grading live
+                    record["sim_truth"] = next((t for t in self.sim_phone.truth if t["file"] == path.name), None)
+                writer.add_rgb_file(path, frames, record)
                 self.stats.rgb_frames += len(frames)
                 self.stats.rgb_files += 1
         except Exception as exc:          # a broken file must not stop the capture

@@ -367,13 +367,13 @@ class SimPhone:
         pts = [(self.phone_unix(float(t)) - start_phone) for t in host_times]
         frames = (self.scene.rgb(float(t) - self.scene_t0, self.width, self.height) for t in host_times)
         write_quicktime(tmp, frames, pts, start_phone, codec=self.codec, utc_offset_h=self.utc_offset_h)
-        os.replace(tmp, final)
         self.truth.append({"file": name, "true_start_host_s": start,
                            "nominal_start_host_s": int(start_phone) - self.realtime_minus_monotonic,
                            "clock_offset_s": self.clock_offset_s, "drift_ppm": self.drift_ppm,
                            # frame k is at host start + pts_k / (1 + drift); scene time = host - t0
                            "scene_t0_host_s": self.scene_t0,
                            "scene": self.scene.describe() if hasattr(self.scene, "describe") else None})
+        os.replace(tmp, final)     # after the truth entry, so the capture finds it with the file
         return final
 
     def run(self, stop: threading.Event, first_index: int = 1, gap_s: float = 0.3) -> None:

@@ -206,16 +206,19 @@ class SyncResult:
 
 
 def file_offsets(files: dict[str, dict], ref_t: np.ndarray, ref_e: np.ndarray,
-                 search_s: float = 1.5) -> tuple[list[FileSync], float, float | None]:
+                 search_s: tuple[float, float] = (-0.6, 1.5)) -> tuple[list[FileSync], float, float | None]:
     """Per-file offsets against a reference energy on the host clock (whole file, held at its
     middle), then a common drift from offsets in windows along each file, kept only if it
     stands out of their scatter. files: name -> {"nominal_start_s", "t" (nominal frame times),
-    "motion", "valid"}. -> (per-file results, drift ppm, residual ms)."""
+    "motion", "valid"}. search_s: offsets considered, from the nominal start: the creation date is
+    truncated to whole seconds (true start 0..1 s after it) and a phone clock kept by NTP is off
+    by well under 0.6 s; a symmetric +-1.5 s let a short file lock onto the wrong lamp pulse.
+    -> (per-file results, drift ppm, residual ms)."""
     out = []
     rows = []                         # (time from file middle, window offset - file offset)
     for name, f in files.items():
         t, e = energy_rate(f["t"], f["motion"], f.get("valid"))
-        off, c = align(ref_t, ref_e, t, e, -search_s, search_s)
+        off, c = align(ref_t, ref_e, t, e, *search_s)
         mid = float((t[0] + t[-1]) / 2) if len(t) else f["nominal_start_s"]
         fs = FileSync(name, f["nominal_start_s"], mid, off, c)
         if np.isfinite(off) and len(t) and t[-1] - t[0] >= WINDOW_S:

@@ -85,11 +85,18 @@ def test_report_has_the_numbers(prepared):
 
 
 def _without_truth(session: Path, dest: Path) -> Path:
-    """The same session as if captured by a real rig: no simulator truth in closed.json."""
+    """The same session as if captured by a real rig: no simulator truth in session.json,
+    events.jsonl or closed.json."""
     shutil.copytree(session, dest)
     closed = json.loads((dest / "closed.json").read_text())
     closed.pop("sim_truth")
     (dest / "closed.json").write_text(json.dumps(closed))
+    meta = json.loads((dest / "session.json").read_text())
+    meta.pop("sim_scene", None)
+    (dest / "session.json").write_text(json.dumps(meta))
+    events = [json.loads(line) for line in (dest / "events.jsonl").read_text().splitlines() if line.strip()]
+    (dest / "events.jsonl").write_text("".join(json.dumps({k: v for k, v in e.items() if k != "sim_truth"}) + "\n"
+                                               for e in events))
     return dest
 
 

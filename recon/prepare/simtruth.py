@@ -39,7 +39,8 @@ class SessionTruth:
 def session_truth(session) -> SessionTruth | None:
     """The truth of a simulated session of the rig.sim world (None for other sessions)."""
     from rig.sim import make_calibration_world, make_world
-    entries = (session.summary or {}).get("sim_truth") or []
+    entries = (session.summary or {}).get("sim_truth") or [   # closed.json, else live rgb_file events
+        e["sim_truth"] for e in session.events if e.get("event") == "rgb_file" and e.get("sim_truth")]
     scene = next((e.get("scene") for e in entries if e.get("scene")), None)
     if scene is None:
         return None
