@@ -382,7 +382,9 @@ class Trainer:
         ps = " ".join(f"{m} {psnrs[f'psnr_{m}']:.2f}" for m in self.cfg.model.modalities if f"psnr_{m}" in psnrs)
         ls = " ".join(f"{k[5:]} {v:.4f}" for k, v in losses.items())
         roles = " ".join(f"{k} {v}" for k, v in self.counts().items())
-        if self.cfg.minutes:
+        if self.progress_fn is not None:      # live: the end depends on the capture
+            eta = self.elapsed * (1 - p) / max(p, 1e-9)
+        elif self.cfg.minutes:
             eta = max(60 * self.cfg.minutes - self.elapsed, 0)
         else:
             eta = (self.cfg.iterations - self.iteration) / max(its, 1e-9)

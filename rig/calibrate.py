@@ -156,7 +156,8 @@ def simulated_calibration(session) -> RigCalibration | None:
     """The simulator's true calibration recorded in a simulated session (None otherwise): in
     session.json from the start of the capture, or in closed.json's sim_truth at its end."""
     truth = (session.summary or {}).get("sim_truth") or []
-    scene = (session.meta or {}).get("sim_scene") or next((t.get("scene") for t in truth if t.get("scene")), None)
+    scene = (getattr(session, "meta", None) or {}).get("sim_scene") or next(
+        (t.get("scene") for t in truth if t.get("scene")), None)
     if not scene or "thermal_from_rgb" not in scene:
         return None
     lens = [Lens(**{k: v for k, v in scene[key].items()}) for key in ("rgb_intrinsics", "thermal_intrinsics")]
