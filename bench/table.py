@@ -62,11 +62,29 @@ def table_rows(results: dict, methods: list[str]) -> list[dict]:
             continue
         row = {"method": method, "scenes": len(runs)}
         for key in ("psnr_rgb", "ssim_rgb", "psnr_thermal", "ssim_thermal", "mae_k_thermal",
-                    "gaussians", "model_mb", "train_s", "iterations"):
+                    "gaussians", "model_mb", "train_s", "iterations", "peak_rss_mb"):
             vals = [r[key] for r in runs if r.get(key) is not None]
             row[key] = float(np.mean(vals)) if vals else None
         rows.append(row)
     return rows
+
+
+def reset_peak_rss() -> None:
+    """Linux: restart the process's VmHWM so the next read is this run's peak."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        pass
+
+
+def peak_rss_mb() -> float | None:
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return None
 
 
 def summarise(summary: dict) -> dict:
@@ -76,18 +94,20 @@ def summarise(summary: dict) -> dict:
             "psnr_thermal": get("thermal", "psnr"), "ssim_thermal": get("thermal", "ssim"),
             "mae_k_thermal": get("thermal", "mae_k"), "gaussians": summary["gaussians"],
             "roles": summary["gaussians_per_role"], "model_mb": summary["model_bytes"] / 1e6,
-            "train_s": summary["train_seconds"], "iterations": summary["iterations"]}
+            "train_s": summary["train_seconds"], "iterations": summary["iterations"],
+            "peak_rss_mb": summary.get("peak_rss_mb")}
 
 
 def markdown(rows: list[dict], title: str) -> str:
     fmt = lambda v, d: "–" if v is None else f"{v:.{d}f}"  # noqa: E731
     lines = [f"**{title}**", "",
-             "| method | RGB PSNR | RGB SSIM | thermal PSNR | thermal SSIM | thermal MAE (K) | Gaussians | MB | train s | it |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "| method | RGB PSNR | RGB SSIM | thermal PSNR | thermal SSIM | thermal MAE (K) | Gaussians | MB | train s | it | peak RSS MB |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['method']} | {fmt(r['psnr_rgb'], 2)} | {fmt(r['ssim_rgb'], 3)} | "
                      f"{fmt(r['psnr_thermal'], 2)} | {fmt(r['ssim_thermal'], 3)} | {fmt(r['mae_k_thermal'], 2)} | "
-                     f"{fmt(r['gaussians'], 0)} | {fmt(r['model_mb'], 1)} | {fmt(r['train_s'], 0)} | {fmt(r['iterations'], 0)} |")
+                     f"{fmt(r['gaussians'], 0)} | {fmt(r['model_mb'], 1)} | {fmt(r['train_s'], 0)} | {fmt(r['iterations'], 0)} | "
+                     f"{fmt(r.get('peak_rss_mb'), 0)} |")
     return "\n".join(lines)
 
 
@@ -150,8 +170,11 @@ def main() -> int:
                 cfg = make_config(method, minutes=args.minutes, log_every=10**9, eval_every=10**9,
                                   checkpoint_every=10**9)
                 t0 = time.perf_counter()
+                reset_peak_rss()
                 trainer, curve = train_with_curve(cfg, scene, run_dir, args.checkpoints, log)
                 summary = finish(trainer, run_dir, data)
+                summary["peak_rss_mb"] = peak_rss_mb()        # training + finishing, whole process
+                (run_dir / "metrics.json").write_text(json.dumps(summary, indent=2))
                 curves.setdefault(scene_name, {})[method] = curve
                 curves_path.write_text(json.dumps(curves, indent=1))
                 log(f"  done in {time.perf_counter() - t0:.0f} s wall: " + json.dumps(summary["metrics"]))

@@ -1,14 +1,9 @@
-"""`recon`: reconstruction commands.
-
-Each subcommand lives beside the concept it drives; a module listed in
-COMMANDS exposes `register(subparsers)` which adds its parser and sets
-`func(args) -> int`.
-"""
+"""`recon`: reconstruction commands (each lives beside the concept it drives; see rig.cli_format)."""
 from __future__ import annotations
 
-import argparse
-import importlib
 import sys
+
+from rig.cli_format import command_parser, run_command
 
 COMMANDS = [
     "recon.data.cli",
@@ -21,24 +16,13 @@ COMMANDS = [
 ]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="recon",
-        description="thermal4d reconstruction: datasets, Dynamic Thermal Gaussians training, rendering, evaluation.",
-    )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMANDS:
-        importlib.import_module(name).register(sub)
-    return parser
+def build_parser():
+    return command_parser("recon", "thermal4d reconstruction: datasets, Dynamic Thermal Gaussians training, "
+                                   "rendering, evaluation.", COMMANDS)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 2
-    return int(args.func(args) or 0)
+    return run_command(build_parser(), argv)
 
 
 if __name__ == "__main__":

@@ -88,8 +88,8 @@ def align_dataset(data_dir: Path, reference: tuple[np.ndarray, np.ndarray] | Non
     (each re-run of SfM picks its own frames). Returns this dataset's path, aligned."""
     path = data_dir / "transforms.json"
     meta = json.loads(path.read_text())
-    rgb = sorted((float(f["timestamp_s"]), np.asarray(f["transform_matrix"])[:3, 3])
-                 for f in meta["frames"] if f["modality"] == "rgb")
+    rgb = sorted(((float(f["timestamp_s"]), np.asarray(f["transform_matrix"])[:3, 3])
+                  for f in meta["frames"] if f["modality"] == "rgb"), key=lambda tc: tc[0])
     times, centres = np.array([t for t, _ in rgb]), np.stack([c for _, c in rgb])
     if reference is None:
         return times, centres
@@ -128,15 +128,11 @@ class Reconstructor(threading.Thread):
         from recon.prepare import PrepareError, prepare_session
 
         session = open_session(self.session_dir)
-        done_span, version = -1.0, 0
+        next_due, version = self.opts.min_capture_s, 0
         while not self.stop_event.is_set():
             session.refresh()
             span, closed = session_span_s(session), session.closed
-            due = span >= self.opts.min_capture_s and (closed or span - done_span >= self.opts.refresh_s
-                                                       or done_span < 0)
-            if not due or (closed and done_span >= span):
-                if closed and done_span >= span:
-                    return
+            if not (closed or span >= next_due):
                 self.stop_event.wait(self.opts.poll_s)
                 continue
             steps = int(min(self.opts.max_steps, max(8, span * self.opts.steps_per_s)))
@@ -148,13 +144,18 @@ class Reconstructor(threading.Thread):
                 self.ready.put((target, closed, span))
                 self.log(f"live poses: v{version} from {span:.0f} s of capture, {steps} steps, "
                          f"{time.perf_counter() - t0:.0f} s{' (final)' if closed else ''}")
-                version += 1
-            except (PrepareError, RuntimeError) as exc:
-                self.log(f"live poses: not yet ({exc}); retrying with more capture")
                 if closed:
+                    return
+                version += 1
+                next_due = span + self.opts.refresh_s
+            except (PrepareError, RuntimeError) as exc:
+                if closed:
+                    self.log(f"live poses: failed on the whole capture ({exc})")
                     self.ready.put((None, True, span))
                     return
-            done_span = span
+                # e.g. the phone's first video has not landed yet: try again soon
+                self.log(f"live poses: not yet ({exc}); retrying with more capture")
+                next_due = span + self.opts.min_capture_s
 
 
 def follow(session_dir: Path, run_dir: Path, cfg: TrainConfig, opts: FollowOptions, log,
@@ -205,7 +206,7 @@ def follow(session_dir: Path, run_dir: Path, cfg: TrainConfig, opts: FollowOptio
                 if is_final:
                     closed = True
                     end_iteration = trainer.iteration
-                    log(f"live: capture finished; {opts.after_iterations} more iterations")
+                    log(f"live: capture finished at iteration {end_iteration}; {opts.after_iterations} more iterations")
             if trainer is None:
                 continue
             stats = trainer.tick(on_eval)

@@ -3,7 +3,7 @@
 RUN/ after a run:
   config.json              every hyper-parameter used
   scene.json               temperature scaling and a default camera for `recon render`
-  checkpoints/latest.pt    resumable state (written every --checkpoint-every iterations, atomically)
+  checkpoints/latest.pt    resumable state (every 500 iterations and at the end, written atomically)
   history.json             held-out PSNR, losses, Gaussians per role against iteration and seconds
   renders/<file_path>      every test frame, same relative path and encoding as the ground truth
   eval/metrics.{json,md}   `recon eval` of those renders
@@ -22,7 +22,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 from PIL import Image
 
 from recon.config import METHODS, config_to_dict, make_config
@@ -111,6 +110,8 @@ def write_animation(trainer: Trainer, path: Path, frames: int = 24) -> None:
 def finish(trainer: Trainer, run_dir: Path, dataset_dir: Path) -> dict:
     """Render, grade, draw and export a trained run. Returns the metrics summary."""
     t0 = time.perf_counter()
+    (run_dir / "config.json").write_text(json.dumps(config_to_dict(trainer.cfg), indent=2))
+    (run_dir / "scene.json").write_text(json.dumps(scene_facts(trainer.scene, dataset_dir), indent=2))
     n = render_test_views(trainer, run_dir)
     report = evaluate_run(run_dir, dataset_dir, modalities=trainer.cfg.model.modalities) if n else {}
     if report:
@@ -196,7 +197,6 @@ def train_and_finish(args, inp: Path, out: Path, kind: str, overrides: dict, fee
         cfg = config_from_args(args, overrides)
         trainer, data_dir = follow(inp, out, cfg, FollowOptions(after_iterations=args.after), log,
                                    prepare_options={"downscale": args.downscale}, on_step=feed.on_step)
-        scene = trainer.scene
     else:
         data_dir = inp
         if kind == "session":
@@ -206,9 +206,6 @@ def train_and_finish(args, inp: Path, out: Path, kind: str, overrides: dict, fee
                 prepare_session(inp, data_dir, downscale=args.downscale)
         scene = Scene(load_dataset(data_dir))
         trainer = make_trainer(args, scene, out, overrides)
-    (out / "config.json").write_text(json.dumps(config_to_dict(trainer.cfg), indent=2))
-    (out / "scene.json").write_text(json.dumps(scene_facts(scene, data_dir), indent=2))
-    if not args.follow:
         trainer.train(on_step=feed.on_step)
     feed.publish_status(trainer, state="finishing")
     summary = finish(trainer, out, data_dir)

@@ -12,28 +12,13 @@ import numpy as np
 import torch
 
 from recon.data import Dataset, Frame
+from recon.splat.cameras import PinholeCamera as Camera
 
 
-@dataclass(frozen=True)
-class Camera:
-    viewmat: torch.Tensor   # (4, 4) world-to-camera, OpenCV axes
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    width: int
-    height: int
-
-    @property
-    def center(self) -> torch.Tensor:
-        r, t = self.viewmat[:3, :3], self.viewmat[:3, 3]
-        return -r.T @ t
-
-    @classmethod
-    def of_frame(cls, frame: Frame) -> "Camera":
-        return cls(torch.as_tensor(np.asarray(frame.viewmat()), dtype=torch.float32),
-                   float(frame.fx), float(frame.fy), float(frame.cx), float(frame.cy),
-                   int(frame.width), int(frame.height))
+def camera_of_frame(frame: Frame) -> Camera:
+    return Camera(torch.as_tensor(np.asarray(frame.viewmat()), dtype=torch.float32),
+                  float(frame.fx), float(frame.fy), float(frame.cx), float(frame.cy),
+                  int(frame.width), int(frame.height))
 
 
 @dataclass
@@ -60,7 +45,7 @@ class Scene:
                 self._by_time[m].setdefault(v.time, []).append(v)
 
     def _view(self, frame: Frame) -> View:
-        return View(frame, Camera.of_frame(frame), self.time_of(frame))
+        return View(frame, camera_of_frame(frame), self.time_of(frame))
 
     def modalities(self) -> tuple[str, ...]:
         return tuple(m for m in ("rgb", "thermal") if self.train[m])

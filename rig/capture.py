@@ -7,7 +7,6 @@ pings the sync box, prints a progress line and re-estimates sync every few secon
 """
 from __future__ import annotations
 
-import argparse
 import datetime as dt
 import logging
 import platform

@@ -1,14 +1,9 @@
-"""`rig`: capture commands.
-
-Each subcommand lives beside the concept it drives; a module listed in
-COMMANDS exposes `register(subparsers)` which adds its parser and sets
-`func(args) -> int`.
-"""
+"""`rig`: capture commands (each lives beside the concept it drives; see rig.cli_format)."""
 from __future__ import annotations
 
-import argparse
-import importlib
 import sys
+
+from rig.cli_format import command_parser, run_command
 
 COMMANDS = [
     "rig.capture",
@@ -18,24 +13,12 @@ COMMANDS = [
 ]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="rig",
-        description="thermal4d rig: devices, capture, sessions, calibration.",
-    )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMANDS:
-        importlib.import_module(name).register(sub)
-    return parser
+def build_parser():
+    return command_parser("rig", "thermal4d rig: devices, capture, sessions, calibration.", COMMANDS)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 2
-    return int(args.func(args) or 0)
+    return run_command(build_parser(), argv)
 
 
 if __name__ == "__main__":

@@ -1,10 +1,8 @@
 """`rig devices`: what is plugged in: GigE Vision cameras, serial sync boxes, phones."""
 from __future__ import annotations
 
-import argparse
 import json
 import os
-import sys
 from dataclasses import asdict
 
 from rig.cli_format import HelpFormatter

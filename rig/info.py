@@ -1,7 +1,6 @@
 """`rig info SESSION`: what a session holds: frames, losses, rates, sync."""
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 

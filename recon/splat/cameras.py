@@ -39,6 +39,12 @@ class PinholeCamera:
     width: int
     height: int
 
+    @property
+    def center(self) -> torch.Tensor:
+        """(3,) camera centre in world coordinates."""
+        r, t = self.viewmat[:3, :3], self.viewmat[:3, 3]
+        return -r.T @ t
+
     def args(self) -> tuple:
         """Positional camera arguments of rasterization(), after the Gaussians."""
         return (self.viewmat, self.fx, self.fy, self.cx, self.cy, self.width, self.height)
