@@ -18,7 +18,7 @@ from pathlib import Path
 
 
 def demo(args: argparse.Namespace) -> int:
-    out = Path(args.out)
+    out = Path(args.out or time.strftime("runs/demo-%Y%m%d-%H%M%S"))
     session, run_dir = out / "session", out / "run"
     if session.exists() or run_dir.exists():
         raise SystemExit(f"{out}: holds an earlier demo; remove it or pass --out NEW_FOLDER")
@@ -58,7 +58,7 @@ def demo(args: argparse.Namespace) -> int:
 def register(sub) -> None:
     p = sub.add_parser("demo", help="the appliance on the simulated rig: capture + live training + status page",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--out", default="runs/demo", help="output folder (default: runs/demo)")
+    p.add_argument("--out", default=None, help="output folder (default: runs/demo-<date>-<time>, new each time)")
     p.add_argument("--duration", type=float, default=60.0, help="capture seconds (default: 60)")
     p.add_argument("--after", type=int, default=1500, help="iterations after the capture ends (default: 1500)")
     p.add_argument("--no-serve", dest="serve", action="store_false", help="no status page")
