@@ -15,7 +15,9 @@ extended with its learned rows kept where they were (Trainer.extend_time).
 Schedule: while capturing, progress rises to `capture_progress` (routing learns with the early
 prior, densification on, learning rates high); once the capture is closed and its final
 reconstruction loaded, progress runs to 1 over `after_iterations` (specialisation, routing
-freeze, decay), then the run finishes like `recon run`.
+freeze, decay), then the run finishes like `recon run`. A capture that dies without closing
+(no new frame for `stall_s`, no closed.json) is treated as ended, and an unexpected error in the
+pose thread ends the run the same way: the follower never waits forever.
 """
 from __future__ import annotations
 
@@ -46,6 +48,8 @@ class FollowOptions:
     capture_progress: float = 0.3    # schedule position held while capturing
     warmup_iterations: int = 300     # iterations to reach it
     poll_s: float = 1.0
+    stall_s: float = 30.0            # no new thermal frame for this long and no closed.json: the
+                                     # capture died (kill -9, power); train on what it left
 
 
 def session_span_s(session) -> float:
@@ -125,13 +129,27 @@ class Reconstructor(threading.Thread):
         self.final = False
 
     def run(self) -> None:
+        try:
+            self._follow_session()
+        except Exception as exc:     # a dead thread must not leave the trainer waiting forever
+            self.log(f"live poses: stopped by an unexpected error: {exc!r}")
+            self.ready.put((None, True, 0.0))
+
+    def _follow_session(self) -> None:
         from recon.prepare import PrepareError, prepare_session
 
         session = open_session(self.session_dir)
         next_due, version = self.opts.min_capture_s, 0
+        frames, last_growth = -1, time.monotonic()
         while not self.stop_event.is_set():
             session.refresh()
+            if len(session.thermal) != frames:
+                frames, last_growth = len(session.thermal), time.monotonic()
             span, closed = session_span_s(session), session.closed
+            if not closed and time.monotonic() - last_growth > self.opts.stall_s:
+                self.log(f"live poses: no new frame for {self.opts.stall_s:.0f} s and no closed.json; "
+                         f"treating the capture as ended at {span:.0f} s")
+                closed = True
             if not (closed or span >= next_due):
                 self.stop_event.wait(self.opts.poll_s)
                 continue
@@ -174,7 +192,8 @@ def follow(session_dir: Path, run_dir: Path, cfg: TrainConfig, opts: FollowOptio
         p_cap = opts.capture_progress
         if end_iteration is None:
             return min(p_cap, p_cap * tr.iteration / max(opts.warmup_iterations, 1))
-        return min(1.0, p_cap + (1 - p_cap) * (tr.iteration - end_iteration) / max(opts.after_iterations, 1))
+        after = tr.iteration - end_iteration
+        return 1.0 if after >= opts.after_iterations else p_cap + (1 - p_cap) * after / opts.after_iterations
 
     try:
         while True:

@@ -117,6 +117,10 @@ class DTGModel(nn.Module):
         sd = state["state_dict"]
         params = {k[len("gaussians."):]: v.clone() for k, v in sd.items() if k.startswith("gaussians.")}
         model = cls(cfg, params, state["n_times"])
+        for name in ("coarse", "fine"):     # a live run may have extended or refined them
+            key = f"time_embedding.{name}"
+            if key in sd:
+                setattr(model.time_embedding, name, nn.Parameter(sd[key].clone()))
         model.load_state_dict(sd)
         return model
 

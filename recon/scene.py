@@ -53,6 +53,13 @@ class Scene:
     def views_at(self, modality: str, time: float) -> list[View]:
         return self._by_time[modality].get(time, [])
 
+    def steps_per_unit_time(self) -> int:
+        """Time steps the whole [0, 1] time axis holds at this scene's sampling density: the step
+        count for a dataset spanning [0, 1]; more for a live capture covering part of its horizon."""
+        n = len(self.times)
+        span = self.times[-1] - self.times[0] if n > 1 else 0.0
+        return n if span <= 0 else int(round((n - 1) / span)) + 1
+
     def extent(self) -> float:
         """1.1 x the largest distance of a training camera from their mean (3DGS), floored by the
         spread of the initial points so a nearly static handheld capture keeps sane step sizes."""

@@ -77,6 +77,14 @@ class TimeEmbedding(nn.Module):
             out[name] = torch.cat([table, table[-1:].expand(extra, -1)])
         return out
 
+    @torch.no_grad()
+    def refined(self, factor: int) -> dict[str, torch.Tensor]:
+        """Tables with `factor` times as many row intervals over the same span ((R-1)f+1 rows),
+        interpolated from the old rows: past coarse-to-fine every lookup is unchanged, and the
+        new rows can learn finer detail (a live capture whose time steps grew denser)."""
+        return {name: resample_rows(getattr(self, name), (getattr(self, name).shape[0] - 1) * factor + 1)
+                for name in ("coarse", "fine")}
+
     def temporal_smoothness(self) -> torch.Tensor:
         """Mean squared second difference over rows of both tables."""
         terms = []

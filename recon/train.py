@@ -20,10 +20,11 @@ from recon.config import TrainConfig, config_from_dict, config_to_dict
 from recon.eval import psnr
 from recon.gaussians import init_gaussians
 from recon.losses import EmbeddingSmoothness, rgb_loss, thermal_loss
-from recon.model import DTGModel, check_params
+from recon.model import DTGModel, check_params, time_rows
 from recon.render import inference_masks, render
 from recon.scene import Scene
 from recon.strategy import Strategy
+from recon.time_embedding import resample_rows
 
 
 def log_lerp(a: float, b: float, p: float) -> float:
@@ -119,7 +120,7 @@ class Trainer:
         temps = initial_temperatures(self.scene, pts) if "thermal" in self.cfg.model.modalities else None
         params = init_gaussians(pts, rgb, temps, self.cfg.model, self.cfg.routing, self.gen)
         bgs = {m: initial_background(self.scene, m) for m in self.cfg.model.modalities}
-        return DTGModel(self.cfg.model, params, n_times=len(self.scene.times), backgrounds=bgs)
+        return DTGModel(self.cfg.model, params, n_times=self.scene.steps_per_unit_time(), backgrounds=bgs)
 
     def _base_lr(self, key: str) -> float:
         lr = self.cfg.lr
@@ -167,16 +168,35 @@ class Trainer:
 
     def replace_scene(self, scene: Scene) -> None:
         """Continue on a grown scene (live training): same model, optimizer and statistics; new
-        frames and time steps. The scene extent, hence step sizes, stays that of the first scene."""
+        frames and time steps. The scene extent, hence step sizes, stays that of the first scene.
+        When the time steps grew at least twice as dense, the time embedding is refined to match."""
         self.scene = scene
         self.holdout = self._holdout_views()
+        if self.cfg.model.deformation != "none":
+            want = time_rows(self.cfg.model, scene.steps_per_unit_time())[1]
+            have = self.model.time_embedding.fine.shape[0]
+            factor = (want - 1) // max(have - 1, 1)
+            if factor >= 2:
+                self.refine_time(factor)
+                self.model.n_times = scene.steps_per_unit_time()
 
-    @torch.no_grad()
     def extend_time(self, factor: int) -> None:
         """Make the time embedding cover a `factor` times longer span without losing what it
         learned (TimeEmbedding.extended); its Adam moments are padded with zeros."""
+        def pad(v: torch.Tensor, rows: int) -> torch.Tensor:
+            return torch.cat([v, v.new_zeros(rows - v.shape[0], *v.shape[1:])])
+        self._replace_time_tables(self.model.time_embedding.extended(factor), pad)
+
+    def refine_time(self, factor: int) -> None:
+        """`factor` times more time-embedding rows over the same span (TimeEmbedding.refined); Adam
+        moments are interpolated like the rows."""
+        self._replace_time_tables(self.model.time_embedding.refined(factor), resample_rows)
+
+    @torch.no_grad()
+    def _replace_time_tables(self, new: dict[str, torch.Tensor], moments) -> None:
+        """Install new time-embedding tables as fresh parameters of the optimizer;
+        moments(old (R, D) Adam moment, new row count) -> its (R', D) successor."""
         te = self.model.time_embedding
-        new = te.extended(factor)
         group = next(g for g in self.optimizer.param_groups if g["name"] == "time_embedding")
         for name, table in new.items():
             old = getattr(te, name)
@@ -184,8 +204,7 @@ class Trainer:
             state = self.optimizer.state.pop(old, {})
             group["params"] = [param if p is old else p for p in group["params"]]
             if state:
-                pad = lambda v: torch.cat([v, v.new_zeros(table.shape[0] - v.shape[0], *v.shape[1:])])  # noqa: E731
-                self.optimizer.state[param] = {k: (pad(v) if torch.is_tensor(v) and v.dim() == 2 else v)
+                self.optimizer.state[param] = {k: (moments(v, table.shape[0]) if torch.is_tensor(v) and v.dim() == 2 else v)
                                                for k, v in state.items()}
             setattr(te, name, param)
 

@@ -15,7 +15,7 @@ import torch
 from recon.config import make_config
 from recon.data import load_dataset
 from recon.data.simulate import SimulateConfig, simulate_dataset
-from recon.follow import align_dataset, similarity
+from recon.follow import FollowOptions, align_dataset, follow, similarity
 from recon.render import render_frame
 from recon.scene import Scene
 from recon.time_embedding import TimeEmbedding
@@ -42,15 +42,20 @@ def test_extended_time_embedding_keeps_every_learned_time():
     assert torch.allclose(grown(0.75), te(1.0), atol=1e-6)
 
 
-def test_trainer_extend_time_keeps_renders_and_trains_on(tmp_path):
+def _trained(tmp_path, frames=4, steps=15):
     out = tmp_path / "d"
-    simulate_dataset(out, SimulateConfig(frames=4, width=40, height=30, seed=1, points=400))
+    simulate_dataset(out, SimulateConfig(frames=frames, width=40, height=30, seed=1, points=400))
     scene = Scene(load_dataset(out))
     cfg = make_config("dtg", iterations=40, eval_every=1000, log_every=1000, checkpoint_every=10_000)
-    tr = Trainer(cfg, scene, log=lambda _: None)
+    tr = Trainer(cfg, scene, tmp_path / "run", log=lambda _: None)
     tr.progress_fn = lambda _: 0.9          # past coarse-to-fine: lookups are exact row interpolation
-    for _ in range(15):
+    for _ in range(steps):
         tr.step()
+    return tr, scene
+
+
+def test_trainer_extend_time_keeps_renders_and_trains_on(tmp_path):
+    tr, scene = _trained(tmp_path)
     cam = scene.test["thermal"][0].camera
     before = [render_frame(tr.model, "thermal", t, cam) for t in (0.0, 0.4, 1.0)]
     rows = tr.model.time_embedding.fine.shape[0]
@@ -63,6 +68,48 @@ def test_trainer_extend_time_keeps_renders_and_trains_on(tmp_path):
     assert any(p is te_param for g in tr.optimizer.param_groups for p in g["params"])
     tr.step()                               # Adam state padded to the new rows: no shape error
     assert tr.optimizer.state[te_param]["exp_avg"].shape == te_param.shape
+
+
+def test_trainer_refine_time_keeps_renders_and_trains_on(tmp_path):
+    tr, scene = _trained(tmp_path)
+    cam = scene.test["thermal"][0].camera
+    times = (0.0, 0.13, 0.4, 0.77, 1.0)
+    before = [render_frame(tr.model, "thermal", t, cam) for t in times]
+    rows = tr.model.time_embedding.fine.shape[0]
+    tr.refine_time(3)
+    te_param = tr.model.time_embedding.fine
+    assert te_param.shape[0] == 3 * (rows - 1) + 1
+    for t, a in zip(times, before):
+        assert torch.allclose(a, render_frame(tr.model, "thermal", t, cam), atol=1e-5), t
+    assert any(p is te_param for g in tr.optimizer.param_groups for p in g["params"])
+    tr.step()
+    assert tr.optimizer.state[te_param]["exp_avg_sq"].shape == te_param.shape
+    assert (tr.optimizer.state[te_param]["exp_avg_sq"] >= 0).all()
+
+
+def test_time_rows_follow_the_density_of_time_steps(tmp_path):
+    """A live capture covering the first quarter of its horizon with 10 steps gets the rows of a
+    ~37-step sequence from the start, and a scene that grows denser refines the embedding."""
+    tr, scene = _trained(tmp_path, frames=10, steps=2)
+    assert scene.steps_per_unit_time() == 10
+    quarter = Scene(scene.dataset, time_of=lambda f: 0.25 * float(f.time))
+    assert quarter.steps_per_unit_time() == 37
+    fine = tr.model.time_embedding.fine.shape[0]
+    tr.replace_scene(quarter)                       # 4x denser: fine rows 8 -> at least 18
+    assert tr.model.time_embedding.fine.shape[0] >= 2 * fine - 1
+    tr.step()
+
+
+def test_checkpoint_of_an_extended_embedding_loads(tmp_path):
+    tr, scene = _trained(tmp_path)
+    tr.extend_time(2)
+    tr.refine_time(2)
+    path = tmp_path / "run" / "checkpoints" / "latest.pt"
+    tr.save_checkpoint(path)
+    back = Trainer.resume(path, scene, log=lambda _: None)
+    cam = scene.test["rgb"][0].camera
+    for t in (0.1, 0.3):
+        assert torch.allclose(render_frame(tr.model, "rgb", t, cam), render_frame(back.model, "rgb", t, cam))
 
 
 def test_similarity_alignment_undoes_a_resolved_frame(tmp_path):
@@ -123,6 +170,24 @@ def test_follow_trains_while_a_simulated_capture_is_written(tmp_path):
     assert finished > 0                                   # trained while capturing
     assert len(list((run / "live_data").glob("v*"))) >= 2   # re-solved as the capture grew
     summary = json.loads((run / "metrics.json").read_text())
-    assert summary["iterations"] >= finished + 60
+    assert summary["iterations"] == finished + 60          # stops exactly --after iterations later
     assert {"rgb", "thermal"} <= set(summary["metrics"]), summary
     assert any((run / "renders").rglob("*.png")) and (run / "export" / "model.ply").exists()
+
+
+def test_follow_finishes_a_capture_that_died_without_closing(tmp_path):
+    """A capture killed before it could write closed.json: once no frame arrived for stall_s, the
+    follower prepares what was committed and finishes instead of waiting forever."""
+    session, run = tmp_path / "session", tmp_path / "run"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    subprocess.run([sys.executable, "-m", "rig", "capture", "--duration", "6", "--out", str(session), "--quiet"],
+                   env=env, cwd=ROOT, check=True, timeout=180, stdout=subprocess.DEVNULL)
+    (session / "closed.json").unlink()            # as after kill -9
+    logs = []
+    cfg = make_config("dtg", iterations=1, eval_every=1000, log_every=1000, checkpoint_every=10_000)
+    t0 = time.monotonic()
+    trainer, data_dir = follow(session, run, cfg, FollowOptions(after_iterations=20, stall_s=2.0, poll_s=0.2),
+                               logs.append, prepare_options={"downscale": 4})
+    assert any("treating the capture as ended" in line for line in logs), logs
+    assert data_dir is not None and trainer.iteration >= 20
+    assert time.monotonic() - t0 < 300
