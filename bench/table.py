@@ -117,6 +117,9 @@ def plot(curves: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     scenes = list(curves)
+    # One colour per method across every panel, and a legend per row: the RGB row has no
+    # ed3dgs-thermal curve and the thermal row no ed3dgs-rgb one.
+    colours = {m: f"C{i}" for i, m in enumerate(METHODS)}
     fig, axes = plt.subplots(2, len(scenes), figsize=(4.2 * len(scenes), 7), squeeze=False)
     for j, scene in enumerate(scenes):
         for i, mod in enumerate(("rgb", "thermal")):
@@ -124,12 +127,13 @@ def plot(curves: dict, path: Path) -> None:
             for method, curve in curves[scene].items():
                 pts = [(c["seconds"], c[f"psnr_{mod}"]) for c in curve if f"psnr_{mod}" in c]
                 if pts:
-                    ax.plot(*zip(*pts), marker="o", ms=3, label=method)
+                    ax.plot(*zip(*pts), marker="o", ms=3, label=method, color=colours.get(method))
             ax.set_title(f"{scene}: {mod} (test rig)")
             ax.set_xlabel("training wall-clock (s, 2 CPU cores)")
             ax.set_ylabel("PSNR (dB)")
             ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize=8)
+    for i in range(2):
+        axes[i, 0].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
