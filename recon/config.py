@@ -44,6 +44,8 @@ class ModelConfig:
     # changes; RGB appearance here does not).
     deform_opacity: tuple[str, ...] = ("rgb", "thermal")
     deform_features: tuple[str, ...] = ("thermal",)
+    # Progressive stages that predict geometry residuals (paper: both).
+    deform_geometry: tuple[str, ...] = ("rgb", "thermal")
     # Thermal stage reuses the first stage's residuals detached: thermal loss reaches the shared
     # canonical geometry through F_th but does not reshape F_rgb (paper 3.3).
     thermal_grad_to_rgb_deformation: bool = False
@@ -54,6 +56,7 @@ class ModelConfig:
         self.modalities = tuple(self.modalities)
         self.deform_opacity = tuple(self.deform_opacity)
         self.deform_features = tuple(self.deform_features)
+        self.deform_geometry = tuple(self.deform_geometry)
         bad = [m for m in self.modalities if m not in MODALITIES]
         if bad or not self.modalities:
             raise ValueError(f"modalities must be a non-empty subset of {MODALITIES}, got {self.modalities}")

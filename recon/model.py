@@ -54,7 +54,7 @@ class DTGModel(nn.Module):
                                                 cfg.time_rows_fine_start, cfg.time_c2f_until)
             stages = ["shared"] if cfg.deformation == "shared" else list(cfg.modalities)
             for stage in stages:
-                outs = geometry_outputs()
+                outs = geometry_outputs() if stage == "shared" or stage in cfg.deform_geometry else {}
                 for m in (cfg.modalities if stage == "shared" else [stage]):
                     k, c = feature_shape(cfg, m)
                     outs.update(modality_outputs(m, k * c, m in cfg.deform_opacity, m in cfg.deform_features))
@@ -92,6 +92,7 @@ class DTGModel(nn.Module):
         if cfg.deformation != "none":
             stage = "shared" if cfg.deformation == "shared" else modality
             res = self.stage_residuals(stage, t, progress)
+            res = {**{k: torch.zeros_like(geo[k]) for k in GEOMETRY}, **res}
             applied = {k: res[k] for k in GEOMETRY}
             if cfg.deformation == "progressive" and modality == "thermal" and "rgb" in cfg.modalities:
                 first = rgb_geometry if rgb_geometry is not None else {

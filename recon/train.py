@@ -308,7 +308,10 @@ class Trainer:
         for i, m in enumerate(mods):
             res = self._stage(m, t, p, noise, rgb_geometry if m == "thermal" else None, regularise=(i == 0))
             stats.update(res["stats"])
-            if m == "rgb" and self.cfg.model.deformation == "progressive":
+            # The thermal stage reuses the RGB stage's (detached) geometry, unless the thermal loss
+            # is to shape F_rgb too: then the model recomputes it with its graph.
+            if (m == "rgb" and self.cfg.model.deformation == "progressive"
+                    and not self.cfg.model.thermal_grad_to_rgb_deformation):
                 rgb_geometry = res["geometry"]
         self.iteration += 1
         report = self.strategy.step(self.model.gaussians, self.optimizer, self.iteration, p)
