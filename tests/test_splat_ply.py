@@ -90,6 +90,14 @@ def test_malformed_ply_errors_name_the_file(tmp_path, mutate, match):
         read_gaussians_ply(tmp_path / "broken.ply")
 
 
+@pytest.mark.parametrize("prop,value", [("x", np.nan), ("scale_1", np.inf), ("f_rest_4", -np.inf)])
+def test_non_finite_values_name_the_file_and_property(tmp_path, prop, value):
+    values = {prop: np.array([0.0, value, 1.0], np.float32)}
+    _raw_3dgs_ply(tmp_path / "nan.ply", 3, 4, values)
+    with pytest.raises(PlyError, match=rf"nan\.ply: property '{prop}' has 1 non-finite values \(first at vertex 1\)"):
+        read_gaussians_ply(tmp_path / "nan.ply")
+
+
 def test_missing_file_names_it(tmp_path):
     with pytest.raises(PlyError, match=r"nope\.ply: cannot read"):
         read_gaussians_ply(tmp_path / "nope.ply")

@@ -156,7 +156,12 @@ def read_gaussians_ply(path) -> GaussianPly:
             raise PlyError(f"{path}: missing property {name!r} in element 'vertex'")
         if table.dtype[name].kind != "f":
             raise PlyError(f"{path}: property {name!r} must be float, got {table.dtype[name]}")
-        return table[name].astype(np.float32)
+        values = table[name].astype(np.float32)
+        bad = ~np.isfinite(values)
+        if bad.any():
+            raise PlyError(f"{path}: property {name!r} has {int(bad.sum())} non-finite values "
+                           f"(first at vertex {int(bad.argmax())})")
+        return values
 
     def stack(cols: list[str]) -> np.ndarray:
         return np.stack([column(c) for c in cols], 1) if cols else np.zeros((n, 0), np.float32)
