@@ -8,7 +8,9 @@ loop of requests over one kept-alive connection, round robin over the page's end
 apart. Conditions: idle; a pure-Python CPU-bound thread in the server's process (the worst case
 for the GIL); real DTG training (tiny simulated scene) publishing through TrainingFeed.
 Throughput: one trainer alternating blocks without anything and with TrainingFeed + server + a
-client polling like the page (its endpoints, ~8 requests/s); see throughput().
+page attached: a client polling like the page (its endpoints, ~8 requests/s) and, where Debian's
+Chromium and Playwright are installed, the real page in headless Chromium (its polling, image
+decoding and chart drawing share the 2 cores with training, as on the appliance); see throughput().
 """
 from __future__ import annotations
 
@@ -30,6 +32,7 @@ from urllib.parse import urlsplit
 ENDPOINTS = ["/", "/api/status", "/api/renders", "/api/metrics?max=400", "/api/gaussians?max=200",
              "/api/capture", "/api/sync", "/render/latest/rgb.png", "/render/latest/thermal.png",
              "/render/t03/thermal.png"]
+CHROMIUM = "/usr/bin/chromium"
 PAGE_POLL = ["/api/status", "/api/renders", "/api/capture", "/api/sync", "/api/metrics?max=400",
              "/api/gaussians?max=200", "/render/latest/rgb.png", "/render/latest/thermal.png"]
 
@@ -54,6 +57,49 @@ def client(url: str, n: int, gap_s: float, paths: list[str], duration_s: float |
         time.sleep(gap_s)
     conn.close()
     return {"times": times, "statuses": statuses}
+
+
+def browser(url: str, duration_s: float) -> None:
+    """Keep the status page open in headless Chromium for duration_s (it polls by itself)."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        page = b.new_page()
+        page.goto(url)
+        page.wait_for_timeout(1000 * duration_s)
+        b.close()
+
+
+def run_browser(url: str, duration_s: float) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, __file__, "--browser", url, "--duration", str(duration_s)],
+                            stdout=subprocess.DEVNULL)
+
+
+def descendants(pid: int) -> list[int]:
+    """pid and every process below it (Linux /proc). Playwright starts Chromium in its own process
+    group, so signalling a group would miss it; the parent links still lead there."""
+    children: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        children.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        todo.extend(children.get(p, []))
+    return out
+
+
+def signal_tree(pid: int, sig: int) -> None:
+    for p in descendants(pid):
+        try:
+            os.kill(p, sig)
+        except ProcessLookupError:
+            pass
 
 
 def run_client(url: str, n: int, gap_s: float, paths: list[str], duration_s: float | None = None) -> subprocess.Popen:
@@ -87,12 +133,14 @@ def make_trainer(scene, iterations: int):
     return Trainer(cfg, scene, log=lambda _: None)
 
 
-def throughput(scene, session: Path, run_dir: Path, blocks: int, block_s: float) -> dict:
-    """One trainer, alternating blocks of `block_s` seconds: bare (no feed, page poller paused with
-    SIGSTOP) and served (TrainingFeed on every step, poller polling). Each served block is compared
-    with the mean of the bare blocks on either side, so slow drifts of machine load cancel.
-    Also CPU seconds per iteration of this process (trainer + feed + server threads), which
-    other machines' jobs disturb less than wall-clock rates."""
+def throughput(scene, session: Path, run_dir: Path, blocks: int, block_s: float, poller: str = "client") -> dict:
+    """One trainer, alternating blocks of `block_s` seconds: bare (no feed, the page's poller paused
+    with SIGSTOP) and served (TrainingFeed on every step, poller polling). poller: "client" (a
+    process requesting the page's endpoints) or "browser" (the page in headless Chromium). Each
+    served block is compared with the mean of the bare blocks on either side, so slow drifts of
+    machine load cancel. Also CPU seconds per iteration of this process (trainer + feed + server
+    threads), which other machines' jobs disturb less than wall-clock rates; it does not count the
+    browser's own CPU, which the wall-clock rate does."""
     import server
     from recon.publish import LivePublisher, TrainingFeed
 
@@ -101,33 +149,48 @@ def throughput(scene, session: Path, run_dir: Path, blocks: int, block_s: float)
         tr.step()
     handle = server.serve("127.0.0.1", 0, run_dir=run_dir, session_dir=session)
     feed = TrainingFeed(LivePublisher(run_dir))
-    poller = run_client(handle.url, 0, 1.0 / len(PAGE_POLL), PAGE_POLL, duration_s=3600)
+    if poller == "browser":
+        proc = run_browser(handle.url, 3600)
+        time.sleep(8)                   # Chromium up and the page loaded before the first block
+
+        def pause(on: bool) -> None:
+            signal_tree(proc.pid, signal.SIGSTOP if on else signal.SIGCONT)
+    else:
+        proc = run_client(handle.url, 0, 1.0 / len(PAGE_POLL), PAGE_POLL, duration_s=3600)
+
+        def pause(on: bool) -> None:
+            os.kill(proc.pid, signal.SIGSTOP if on else signal.SIGCONT)
     rows = []
     try:
         for b in range(blocks):
             served = b % 2 == 1
-            os.kill(poller.pid, signal.SIGCONT if served else signal.SIGSTOP)
-            t0, c0, n = time.perf_counter(), time.process_time(), 0
+            pause(not served)
+            t0, c0, n, r0 = time.perf_counter(), time.process_time(), 0, handle.counts["requests"]
             while time.perf_counter() - t0 < block_s:
                 stats = tr.step()
                 n += 1
                 if served:
                     feed.on_step(tr, stats)
             wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-            rows.append({"served": served, "its": n / wall, "cpu_s_per_it": cpu / n, "gaussians": tr.model.num_gaussians})
+            requests = handle.counts["requests"] - r0      # the page really is attached (or paused)
+            rows.append({"served": served, "its": n / wall, "cpu_s_per_it": cpu / n, "requests": requests,
+                         "gaussians": tr.model.num_gaussians})
             print(f"  block {b:2d} {'served' if served else 'bare  '}: {n / wall:6.2f} it/s, "
-                  f"{1e3 * cpu / n:6.1f} ms CPU/it", flush=True)
+                  f"{1e3 * cpu / n:6.1f} ms CPU/it, {requests} requests", flush=True)
     finally:
-        os.kill(poller.pid, signal.SIGCONT)
-        poller.terminate()
-        poller.wait()
+        pause(False)
+        if poller == "browser":
+            signal_tree(proc.pid, signal.SIGTERM)
+        else:
+            proc.terminate()
+        proc.wait()
         handle.stop()
     ratios = {"its": [], "cpu": []}
     for i in range(1, len(rows) - 1, 2):
         before, served, after = rows[i - 1], rows[i], rows[i + 1]
         ratios["its"].append(served["its"] / ((before["its"] + after["its"]) / 2))
         ratios["cpu"].append(((before["cpu_s_per_it"] + after["cpu_s_per_it"]) / 2) / served["cpu_s_per_it"])
-    return {"blocks": rows, "block_s": block_s,
+    return {"poller": poller, "blocks": rows, "block_s": block_s,
             "served_over_bare_its_median": round(statistics.median(ratios["its"]), 3),
             "served_over_bare_its_pairs": [round(r, 3) for r in ratios["its"]],
             "served_over_bare_cpu_median": round(statistics.median(ratios["cpu"]), 3),
@@ -149,7 +212,11 @@ def main() -> int:
     ap.add_argument("--blocks", type=int, default=21, help="alternating throughput blocks, odd (default: 21)")
     ap.add_argument("--block-s", type=float, default=6.0, help="seconds per throughput block (default: 6)")
     ap.add_argument("--session", help="a session folder for /api/capture (default: a 5 s simulated capture)")
+    ap.add_argument("--pollers", default="client,browser",
+                    help="what is attached during the throughput blocks: client, browser or both (default: %(default)s; "
+                         "browser needs Debian's chromium and playwright, skipped without them)")
     ap.add_argument("--client", help=argparse.SUPPRESS)
+    ap.add_argument("--browser", help=argparse.SUPPRESS)
     ap.add_argument("--n", type=int, default=0, help=argparse.SUPPRESS)
     ap.add_argument("--gap", type=float, default=0.02, help=argparse.SUPPRESS)
     ap.add_argument("--paths", help=argparse.SUPPRESS)
@@ -157,6 +224,9 @@ def main() -> int:
     args = ap.parse_args()
     if args.client:
         print(json.dumps(client(args.client, args.n, args.gap, args.paths.split(","), args.duration)))
+        return 0
+    if args.browser:
+        browser(args.browser, args.duration)
         return 0
 
     import server
@@ -216,15 +286,28 @@ def main() -> int:
     results["latency"]["training"]["training_steps_during"] = steps["n"]
     handle.stop()
 
-    print("throughput, alternating bare / served blocks:", flush=True)
-    results["throughput"] = throughput(scene, session, tmp / "run_tp", args.blocks, args.block_s)
+    for poller in args.pollers.split(","):
+        if poller == "browser" and not browser_available():
+            print("throughput with a browser: skipped (needs /usr/bin/chromium and playwright)", flush=True)
+            continue
+        print(f"throughput, alternating bare / served blocks, page attached as a {poller}:", flush=True)
+        tp = throughput(scene, session, tmp / f"run_tp_{poller}", args.blocks, args.block_s, poller)
+        results["throughput" if poller == "client" else f"throughput_{poller}"] = tp
+        print(f"throughput with feed + server + {poller}: {100 * tp['served_over_bare_its_median']:.1f} % of bare "
+              f"(wall-clock it/s), {100 * tp['served_over_bare_cpu_median']:.1f} % (CPU per iteration)", flush=True)
     results["machine"]["load_avg_end"] = os.getloadavg()
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(results, indent=1))
-    tp = results["throughput"]
-    print(f"throughput with feed + server + page: {100 * tp['served_over_bare_its_median']:.1f} % of bare "
-          f"(wall-clock it/s), {100 * tp['served_over_bare_cpu_median']:.1f} % (CPU per iteration) -> {args.out}")
+    print(f"-> {args.out}")
     return 0
+
+
+def browser_available() -> bool:
+    try:
+        import playwright  # noqa: F401
+    except ImportError:
+        return False
+    return Path(CHROMIUM).exists()
 
 
 if __name__ == "__main__":
