@@ -74,10 +74,21 @@ def default_out() -> Path:
     return Path("sessions") / dt.datetime.now().strftime("%Y%m%d-%H%M%S")
 
 
+def simulated_parts(camera: str | None, phone_drop: Path | None, syncbox: str | None) -> tuple[str, ...]:
+    """Parts of the rig the simulation supplies: all ("thermal", "phone", "syncbox") when no
+    device is named; else the thermal camera if it is not named (every session has a thermal
+    stream). A simulated phone or lamp beside named devices would record another scene than
+    theirs, so those come only with the whole simulated rig."""
+    if not (camera or phone_drop or syncbox):
+        return ("thermal", "phone", "syncbox")
+    return () if camera else ("thermal",)
+
+
 class Capture:
     def __init__(self, config: CaptureConfig):
         self.cfg = config
-        self.simulated = not (config.camera or config.phone_drop or config.syncbox)
+        self.sim_parts = simulated_parts(config.camera, config.phone_drop, config.syncbox)
+        self.simulated = len(self.sim_parts) == 3          # the whole simulated rig
         self.out = Path(config.out or default_out())
         self.stats = CaptureStats()
         self.frames: queue.Queue[Frame] = queue.Queue()
@@ -97,7 +108,8 @@ class Capture:
     # -- set-up -----------------------------------------------------------------------------
     def _open_devices(self) -> dict:
         cfg = self.cfg
-        meta: dict = {"simulated": self.simulated, "requested_duration_s": cfg.duration_s,
+        meta: dict = {"simulated": self.simulated, "simulated_parts": list(self.sim_parts),
+                      "requested_duration_s": cfg.duration_s,
                       "host": platform.node(), "created": dt.datetime.now(dt.timezone.utc).isoformat()}
         if cfg.camera:
             self.camera = flir.FlirA700.open(cfg.camera)
@@ -105,20 +117,21 @@ class Capture:
             cam = self.camera.camera
             meta["thermal"] = {"source": cfg.camera, "tick_hz": cam.tick_hz,
                                "device": asdict(cam.info) if cam.info else None}
-        elif self.simulated:
+        else:
             from rig.simulated import Lamp, SimClock, SimThermalCamera, default_scene
-            self.lamp = Lamp() if cfg.sim_lamp else None
+            self.lamp = Lamp() if cfg.sim_lamp and "syncbox" in self.sim_parts else None
             self.scene = default_scene(cfg.seed, lamp=self.lamp, kind=cfg.sim_scene, variant=cfg.sim_variant,
                                        key_hz=cfg.sim_keyframe_hz, render_scale=cfg.sim_render_scale)
             if hasattr(self.scene, "prerender"):
                 if cfg.progress:
                     print(f"rendering the simulated world ({self.scene.n_keys} keyframes per camera)...",
                           file=sys.stderr, flush=True)
-                self.scene.prerender({"thermal": (640, 480), "rgb": (640, 480)}, until_s=cfg.duration_s + 1)
+                kinds = ("thermal", "rgb") if "phone" in self.sim_parts else ("thermal",)
+                self.scene.prerender({k: (640, 480) for k in kinds}, until_s=cfg.duration_s + 1)
             now = time.monotonic()
             self.sim_camera = SimThermalCamera(self.scene, ir_format=cfg.ir_format, scene_t0=now,
                                                clock=SimClock(5000.0, 20.0, now), seed=cfg.seed)
-            if hasattr(self.scene, "describe"):
+            if self.simulated and hasattr(self.scene, "describe"):
                 # the simulated rig's "factory calibration": what a real rig gets from `rig calibrate`
                 meta["sim_scene"] = self.scene.describe()
             meta["thermal"] = {"source": "simulated", "tick_hz": self.sim_camera.tick_hz,
@@ -126,7 +139,7 @@ class Capture:
         if cfg.phone_drop:
             self.drop = DropFolder(cfg.phone_drop, settle_s=cfg.settle_s)
             meta["rgb"] = {"source": str(cfg.phone_drop)}
-        elif self.simulated:
+        elif "phone" in self.sim_parts:
             from rig.simulated import SimPhone
             drop = self.sim_drop_dir
             drop.mkdir(parents=True, exist_ok=True)
@@ -364,15 +377,19 @@ class Capture:
 def register(sub) -> None:
     p = sub.add_parser(
         "capture", help="record a session (simulated rig when no device is named)",
-        description="Record thermal frames, phone videos and sync-box markers into a crash-safe "
-                    "session folder (see the README, 'Session folder'). With no --camera, "
-                    "--phone-drop or --syncbox the simulated rig is captured.",
+        description="Record thermal frames, phone videos and sync-box markers into a crash-safe\n"
+                    "session folder (see the README, 'Session folder').\n"
+                    "With no --camera, --phone-drop or --syncbox the simulated rig is captured (thermal\n"
+                    "camera, phone and sync-box lamp). With --phone-drop and/or --syncbox but no --camera,\n"
+                    "those devices are recorded beside the simulated thermal camera (no simulated phone\n"
+                    "or lamp then: they would show another scene than the real devices).",
         formatter_class=HelpFormatter,
         epilog="examples:\n  rig capture --duration 10 --out /tmp/s1            # simulated rig\n"
+               "  rig capture --phone-drop ~/Drop --duration 30      # real phone, simulated thermal camera\n"
                "  rig capture --camera gige://192.168.1.20 --phone-drop ~/Drop --syncbox /dev/ttyACM0\n"
                "  rig info /tmp/s1 --json")
     p.add_argument("--duration", type=float, default=60.0, help="seconds to record")
-    p.add_argument("--camera", help="thermal camera, gige://HOST[:PORT]")
+    p.add_argument("--camera", help="thermal camera, gige://HOST[:PORT] (not named: simulated)")
     p.add_argument("--phone-drop", type=Path, help="folder where the phone's files arrive")
     p.add_argument("--syncbox", help="serial port of the sync box, e.g. /dev/ttyACM0")
     p.add_argument("--out", type=Path, help="session folder to create (default sessions/<date-time>)")

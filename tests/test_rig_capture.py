@@ -74,6 +74,41 @@ def test_capture_from_gige_phone_folder_and_syncbox(tmp_path):
     assert info["streams"]["thermal"]["incomplete"] == 0 and info["markers"] == len(markers)
 
 
+def test_phone_drop_alone_records_beside_a_simulated_thermal_camera(tmp_path):
+    """Only --phone-drop named: the simulation supplies the thermal camera, no simulated phone or lamp."""
+    drop = tmp_path / "drop"
+    drop.mkdir()
+    movie = write_mov(tmp_path / "IMG_0007.MOV", (np.full((48, 64, 3), i * 9, np.uint8) for i in range(25)),
+                      [i / 25 for i in range(25)], time.time())
+    threading.Timer(0.3, drop_slowly, args=(movie, drop), kwargs={"chunk": 4096, "delay_s": 0.01}).start()
+    code = rig_main(["capture", "--duration", "2.5", "--phone-drop", str(drop), "--settle", "0.3",
+                     "--sim-scene", "synthetic", "--out", str(tmp_path / "s"), "--quiet"])
+    assert code == 0
+    s = open_session(tmp_path / "s")
+    assert s.closed and not s.meta["simulated"] and s.meta["simulated_parts"] == ["thermal"]
+    assert s.meta["thermal"]["source"] == "simulated" and s.meta["rgb"]["source"] == str(drop)
+    assert 50 <= len(s.thermal) <= 90 and all(r["complete"] for r in s.thermal)
+    assert len(s.rgb) == 25 and {r["file"] for r in s.rgb} == {"rgb/IMG_0007.MOV"}
+    assert not (tmp_path / ".s.sim-phone-drop").exists()            # no simulated phone
+    assert not any(e["event"] == "marker" for e in s.events)      # no simulated lamp
+    assert "sim_scene" not in s.meta and not s.summary["stats"]["errors"]
+
+
+def test_syncbox_alone_records_beside_a_simulated_thermal_camera(tmp_path):
+    box = FakeSyncBox()
+    try:
+        code = rig_main(["capture", "--duration", "2.5", "--syncbox", box.port, "--sim-scene", "synthetic",
+                         "--out", str(tmp_path / "s"), "--quiet"])
+    finally:
+        box.close()
+    assert code == 0
+    s = open_session(tmp_path / "s")
+    assert s.meta["simulated_parts"] == ["thermal"] and s.meta["syncbox"]["port"] == box.port
+    assert len(s.thermal) >= 50 and not s.rgb
+    markers = [e for e in s.events if e["event"] == "marker"]
+    assert markers and all("box_us" in e and not e.get("simulated") for e in markers)
+
+
 def test_kill_9_during_capture_keeps_every_committed_frame(tmp_path):
     out = tmp_path / "s"
     proc = subprocess.Popen([sys.executable, "-m", "rig", "capture", "--duration", "60", "--out", str(out),
