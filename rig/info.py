@@ -62,7 +62,8 @@ def session_info(session: Session, resync: bool = False) -> dict:
             "sync_residual_ms": None if sync_res.residual_ms is None else round(sync_res.residual_ms, 3),
             "streams": {"thermal": thermal, "rgb": rgb},
             "sync": {"method": sync_res.method, "rgb_offset_ms": sync_res.rgb_offset_ms,
-                     "drift_ppm": sync_res.drift_ppm,
+                     "drift_ppm": sync_res.drift_ppm, "drift_sd_ppm": sync_res.drift_sd_ppm,
+                     "drift_method": sync_res.drift_method,
                      "files": [{"file": f.file, "offset_ms": f.offset_s * 1e3, "correlation": f.correlation}
                                for f in sync_res.files]},
             "pairs": len(pairs),
@@ -100,6 +101,8 @@ def main(args) -> int:
     print(f"  rgb        {rgb['frames']} frames in {rgb['files']} files ({rgb['dropped']} dropped), {rgb['fps']:.2f} fps")
     s = info["sync"]
     res = info["sync_residual_ms"]
+    sd = "" if s["drift_sd_ppm"] is None else f" +- {s['drift_sd_ppm']:.0f}"
     print(f"  sync       {s['method']}, phone offset {s['rgb_offset_ms'] if s['rgb_offset_ms'] is None else round(s['rgb_offset_ms'], 1)} ms, "
-          f"drift {s['drift_ppm']:.0f} ppm, residual {'-' if res is None else f'{res:.1f} ms'}, {info['pairs']} pairs")
+          f"drift {s['drift_ppm']:.0f}{sd} ppm ({s['drift_method']}), residual {'-' if res is None else f'{res:.1f} ms'}, "
+          f"{info['pairs']} pairs")
     return 0
