@@ -74,6 +74,22 @@ def default_out() -> Path:
     return Path("sessions") / dt.datetime.now().strftime("%Y%m%d-%H%M%S")
 
 
+def nuc_pause(prev: Frame | None, f: Frame, period_s: float, tick_hz: float) -> dict | None:
+    """The NUC pause before frame f, if any: f follows `prev` with no frame lost between
+    (dropped_before 0) yet more than 1.5 frame periods later, by device time (host arrival time
+    when a leader was lost). -> nuc event fields (host_ns: last frame before the pause,
+    end_host_ns: f, gap_s) or None."""
+    if prev is None or f.dropped_before:
+        return None
+    if prev.timestamp and f.timestamp:
+        gap_s = (f.timestamp - prev.timestamp) / tick_hz
+    else:
+        gap_s = (f.host_ns - prev.host_ns) / 1e9
+    if gap_s <= 1.5 * period_s:
+        return None
+    return {"source": "pause", "host_ns": prev.host_ns, "end_host_ns": f.host_ns, "gap_s": gap_s}
+
+
 def simulated_parts(camera: str | None, phone_drop: Path | None, syncbox: str | None) -> tuple[str, ...]:
     """Parts of the rig the simulation supplies: all ("thermal", "phone", "syncbox") when no
     device is named; else the thermal camera if it is not named (every session has a thermal
@@ -95,6 +111,7 @@ class Capture:
         self.stop = threading.Event()
         self.threads: list[threading.Thread] = []
         self.camera = None              # FlirA700 when a real camera is used
+        self._camera_events_written = 0
         self.sim_camera = None
         self.sim_phone = None
         self.box = None
@@ -175,8 +192,10 @@ class Capture:
             log.exception("thermal source failed")
 
     def _thermal_writer(self, writer: SessionWriter) -> None:
-        prev = None
+        prev = None                                    # thumbnail of the last complete frame
+        last = None                                    # last frame written
         epoch = -1
+        tick_hz = self.camera.camera.tick_hz if self.camera is not None else self.sim_camera.tick_hz
         while not (self.stop.is_set() and self.frames.empty() and not self._source_alive()):
             try:
                 batch = [self.frames.get(timeout=0.2)]
@@ -184,12 +203,15 @@ class Capture:
                 continue
             while not self.frames.empty() and len(batch) < 64:
                 batch.append(self.frames.get_nowait())
-            items = []
+            items, pauses = [], []
             for f in batch:
                 e = self._epoch_of(f)
                 if e != epoch:
                     writer.add_event({"event": "epoch", "epoch": e, **self._epoch_meta(f), "host_ns": f.host_ns})
                     epoch = e
+                elif (pause := nuc_pause(last, f, 1 / flir.A700_FPS, tick_hz)) is not None:
+                    pauses.append({"event": "nuc", **pause, "frame": writer.n_thermal + len(items)})
+                last = f
                 counts = f.array()
                 th = thumbnail(counts)
                 items.append((f.data, {
@@ -202,6 +224,8 @@ class Capture:
                     "change": change_energy(prev if f.complete else None, th)}))
                 prev = th if f.complete else prev
             writer.add_thermal(items)
+            for event in pauses:                       # after the frames they point to are committed
+                writer.add_event(event)
             self.stats.thermal_frames += len(items)
 
     def _source_alive(self) -> bool:
@@ -266,6 +290,15 @@ class Capture:
                 if state and self.stop.wait(self.cfg.marker_on_s):
                     break
 
+    def _camera_events(self, writer: SessionWriter) -> None:
+        """Persist what the camera profile logged since the last call (commanded NUCs, IRFormat
+        changes)."""
+        if self.camera is not None:
+            new = self.camera.events[self._camera_events_written:]
+            self._camera_events_written += len(new)
+            for event in new:
+                writer.add_event(event)
+
     def _poll_syncbox(self, writer: SessionWriter) -> None:
         self.box.ping()
         rate, offset = self.box.clock()
@@ -302,6 +335,7 @@ class Capture:
             try:
                 while (elapsed := time.monotonic() - self.t_start) < cfg.duration_s:
                     time.sleep(0.5)
+                    self._camera_events(writer)
                     if self.box is not None:
                         self._poll_syncbox(writer)
                     if time.monotonic() >= next_sync:
@@ -345,6 +379,7 @@ class Capture:
                 self.stats.errors.append(f"stopping camera: {exc}")
         for t in self.threads:
             t.join(timeout=120)
+        self._camera_events(writer)
         if self.box is not None:
             self._poll_syncbox(writer)
             rate, offset = self.box.clock()

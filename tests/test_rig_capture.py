@@ -74,6 +74,32 @@ def test_capture_from_gige_phone_folder_and_syncbox(tmp_path):
     assert info["streams"]["thermal"]["incomplete"] == 0 and info["markers"] == len(markers)
 
 
+def test_nuc_events_are_written_to_events_jsonl(tmp_path):
+    """The fake camera pauses for automatic NUCs (0.3 s every 1.5 s) and for one commanded NUC
+    (acked after a 0.6 s PENDING_ACK): each shows in events.jsonl with host times."""
+    with FakeGigECamera(FakeConfig(width=160, height=120, nuc_period_s=1.5, nuc_duration_s=0.3)) as fake:
+        cap = Capture(CaptureConfig(duration_s=4.0, out=tmp_path / "s", camera=fake.url, progress=False))
+        threading.Timer(2.0, lambda: cap.camera.nuc()).start()
+        cap.run()
+        nucs = fake.stats["nucs"]
+    s = open_session(tmp_path / "s")
+    events = [e for e in s.events if e["event"] == "nuc"]
+    commands = [e for e in events if e["source"] == "command"]
+    pauses = [e for e in events if e["source"] == "pause"]
+    assert len(commands) == 1 and commands[0]["done_host_ns"] - commands[0]["host_ns"] >= 0.5e9
+    # NUCs pause 0.3-0.6 s (shorter pauses: the fake's sender thread was late on a busy machine)
+    nuc_pauses = [p for p in pauses if p["gap_s"] > 0.25]
+    assert 2 <= len(nuc_pauses) <= nucs and not any(r["dropped_before"] for r in s.thermal)
+    frames = {r["i"]: r for r in s.thermal}
+    for p in pauses:
+        assert 1.5 / 30 < p["gap_s"] < 1.0 and frames[p["frame"]]["host_ns"] == p["end_host_ns"]
+        assert p["end_host_ns"] - p["host_ns"] == pytest.approx(p["gap_s"] * 1e9, abs=0.05e9)
+    # the commanded NUC paused the stream while it ran
+    c = commands[0]
+    assert any(p["host_ns"] <= c["done_host_ns"] and p["end_host_ns"] >= c["host_ns"] for p in nuc_pauses)
+    assert len(pauses) == sum(g["kind"] == "pause (NUC)" for g in s.sync["thermal_gaps"])
+
+
 def test_phone_drop_alone_records_beside_a_simulated_thermal_camera(tmp_path):
     """Only --phone-drop named: the simulation supplies the thermal camera, no simulated phone or lamp."""
     drop = tmp_path / "drop"
