@@ -27,7 +27,8 @@ from rig.drivers.gige import GvcpError, gvsp
 from rig.drivers.gige.features import GenicamXmlError
 from rig.drivers.syncbox import SyncBoxError
 from rig.drivers.gige.stream import Frame, StreamConfig
-from rig.drivers.phone import PHOTO_SUFFIXES, DropFolder, probe_video
+from rig.drivers.phone import PHOTO_SUFFIXES, DropFolder, probe_video, pts_drops
+from rig.info import session_info
 from rig.session import SessionWriter, open_session
 from rig.sim.tabletop import VARIANTS
 from rig.sync import change_energy, synchronise_session, thumbnail
@@ -63,8 +64,13 @@ class CaptureConfig:
 @dataclass
 class CaptureStats:
     thermal_frames: int = 0
+    thermal_incomplete: int = 0
+    thermal_dropped: int = 0                # frames lost entirely (block ids missing)
+    thermal_resent: int = 0                 # packets recovered by PACKETRESEND
     rgb_frames: int = 0
     rgb_files: int = 0
+    rgb_dropped: int = 0                    # judged by PTS gaps
+    rgb_span_s: float = 0.0                 # summed PTS span of the videos (for their frame rate)
     markers: int = 0
     errors: list[str] = field(default_factory=list)
     gige_stream: dict | None = None         # receiver counters (packets, resends, duplicates, ...)
@@ -72,6 +78,20 @@ class CaptureStats:
 
 def default_out() -> Path:
     return Path("sessions") / dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+
+
+def progress_line(elapsed_s: float, duration_s: float, streams: dict, markers: int,
+                  residual_ms: float | None, offset_ms: float | None) -> str:
+    """The `rig capture` status line. streams as `rig info` has them: {"thermal": {"frames",
+    "fps", "incomplete", "dropped", "resent" (packets, optional)}, "rgb": {"frames", "files",
+    "fps", "dropped"}}."""
+    th, rgb = streams["thermal"], streams["rgb"]
+    resent = f" resent {th['resent']}" if th.get("resent") is not None else ""
+    res = "-" if residual_ms is None else f"{residual_ms:.1f} ms"
+    off = "" if offset_ms is None else f" offset {offset_ms:+.0f} ms"
+    return (f"{elapsed_s:6.1f}/{duration_s:.0f} s | thermal {th['frames']} ({th['fps']:4.1f} fps) incomplete "
+            f"{th['incomplete']} dropped {th['dropped']}{resent} | rgb {rgb['frames']} in {rgb['files']} files "
+            f"({rgb['fps']:4.1f} fps) dropped {rgb['dropped']} | markers {markers} | sync residual {res}{off}")
 
 
 def nuc_pause(prev: Frame | None, f: Frame, period_s: float, tick_hz: float) -> dict | None:
@@ -118,6 +138,7 @@ class Capture:
         self.lamp = None                # simulated sync-box lamp
         self.drop: DropFolder | None = None
         self.t_start = 0.0
+        self.t_stop = None              # host s the recording ended
         self._rate: list[tuple[float, int]] = []      # (time, thermal frames) for the fps shown
         # beside the session (same file system, so files are hard-linked in), not inside it
         self.sim_drop_dir = self.out.parent / f".{self.out.name}.sim-phone-drop"
@@ -223,6 +244,9 @@ class Capture:
                     "resent_packets": f.resent_packets, "dropped_before": f.dropped_before,
                     "change": change_energy(prev if f.complete else None, th)}))
                 prev = th if f.complete else prev
+                self.stats.thermal_incomplete += not f.complete
+                self.stats.thermal_dropped += f.dropped_before
+                self.stats.thermal_resent += f.resent_packets
             writer.add_thermal(items)
             for event in pauses:                       # after the frames they point to are committed
                 writer.add_event(event)
@@ -267,8 +291,11 @@ class Capture:
                 if self.sim_phone is not None:    # simulated rig: the file's truth, for grading live
                     record["sim_truth"] = next((t for t in self.sim_phone.truth if t["file"] == path.name), None)
                 writer.add_rgb_file(path, frames, record)
+                pts = [f["pts_s"] for f in frames]
                 self.stats.rgb_frames += len(frames)
                 self.stats.rgb_files += 1
+                self.stats.rgb_dropped += pts_drops(pts)
+                self.stats.rgb_span_s += max(pts) - min(pts) if len(pts) > 1 else 0.0
         except Exception as exc:          # a broken file must not stop the capture
             self.stats.errors.append(f"{path.name}: {exc}")
             writer.add_event({"event": "rgb_error", "file": str(path), "error": str(exc), "host_ns": arrived})
@@ -349,8 +376,9 @@ class Capture:
             except KeyboardInterrupt:
                 print("\ninterrupted: finishing the session", file=sys.stderr)
         finally:
+            self.t_stop = time.monotonic()
             if self.sim_phone is not None:
-                self.sim_phone.stopped_at = time.monotonic()
+                self.sim_phone.stopped_at = self.t_stop
             self.stop.set()
             self._shutdown(writer)
         reader = open_session(self.out)
@@ -363,7 +391,12 @@ class Capture:
             shutil.rmtree(self.sim_drop_dir, ignore_errors=True)
         writer.close(summary)
         if cfg.progress:
-            self._progress(time.monotonic() - self.t_start, final, end="\n")
+            # the recording's real rates (device clock, PTS), not the last seconds' arrivals
+            streams = session_info(reader)["streams"]
+            streams["thermal"]["resent"] = self.stats.thermal_resent
+            line = progress_line(self.t_stop - self.t_start, cfg.duration_s, streams, self.stats.markers,
+                                 final.residual_ms, final.rgb_offset_ms)
+            print(f"\r{line}   ", file=sys.stderr, flush=True)
         return summary
 
     def _spawn(self, name: str, target, *args) -> None:
@@ -390,23 +423,23 @@ class Capture:
                 self.stats.gige_stream = self.camera.camera.stream.stats.as_dict()
             self.camera.close()
 
-    def _progress(self, elapsed: float, sync, end: str = "") -> None:
-        th = self.stats.thermal_frames
+    def _progress(self, elapsed: float, sync) -> None:
+        st = self.stats
         now = time.monotonic()
-        self._rate.append((now, th))
+        self._rate.append((now, st.thermal_frames))
         while len(self._rate) > 2 and now - self._rate[0][0] > 2.0:
             self._rate.pop(0)
         (t0, n0), (t1, n1) = self._rate[0], self._rate[-1]
-        fps = (n1 - n0) / (t1 - t0) if t1 > t0 else 0.0
-        losses = ""
-        if self.camera is not None and self.camera.camera.stream is not None:
-            s = self.camera.camera.stream.stats
-            losses = f" incomplete {s.incomplete} dropped {s.dropped} resent {s.resent_packets}"
-        res = f"{sync.residual_ms:.1f} ms" if sync is not None and sync.residual_ms is not None else "-"
-        off = f" offset {sync.rgb_offset_ms:+.0f} ms" if sync is not None and sync.rgb_offset_ms is not None else ""
-        print(f"\r{elapsed:6.1f}/{self.cfg.duration_s:.0f} s | thermal {th} ({fps:4.1f} fps){losses}"
-              f" | rgb {self.stats.rgb_frames} in {self.stats.rgb_files} files | markers {self.stats.markers}"
-              f" | sync residual {res}{off}   ", end=end, file=sys.stderr, flush=True)
+        streams = {"thermal": {"frames": st.thermal_frames, "fps": (n1 - n0) / (t1 - t0) if t1 > t0 else 0.0,
+                               "incomplete": st.thermal_incomplete, "dropped": st.thermal_dropped,
+                               "resent": st.thermal_resent},
+                   "rgb": {"frames": st.rgb_frames, "files": st.rgb_files, "dropped": st.rgb_dropped,
+                           # phone files arrive whole, after the fact: their recorded rate
+                           "fps": (st.rgb_frames - st.rgb_files) / st.rgb_span_s if st.rgb_span_s else 0.0}}
+        line = progress_line(elapsed, self.cfg.duration_s, streams, st.markers,
+                             sync.residual_ms if sync is not None else None,
+                             sync.rgb_offset_ms if sync is not None else None)
+        print(f"\r{line}   ", end="", file=sys.stderr, flush=True)
 
 
 def register(sub) -> None:

@@ -7,6 +7,7 @@ import sys
 import numpy as np
 
 from rig.cli_format import HelpFormatter
+from rig.drivers.phone import pts_drops
 from rig.session import Session, open_session
 from rig.sync import SyncResult, FileSync, fit_clock, pair_frames, synchronise_session
 
@@ -43,10 +44,7 @@ def session_info(session: Session, resync: bool = False) -> dict:
     for name in files:
         recs = [r for r in session.rgb if r["file"] == name]
         pts = np.array([r["pts_s"] for r in recs])
-        if len(pts) > 2:
-            d = np.diff(pts)
-            med = np.median(d)
-            dropped += int(sum(round(g / med) - 1 for g in d if g > 1.5 * med))
+        dropped += pts_drops(pts)
         if any(f.file == name for f in sync_res.files):
             fs = next(f for f in sync_res.files if f.file == name)
             rgb_t.append(sync_res.rgb_host_s(name, fs.nominal_start_s + pts))

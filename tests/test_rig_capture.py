@@ -2,6 +2,7 @@
 a phone drop folder and a sync box, and kill -9 in the middle of a capture."""
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -12,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig.capture import Capture, CaptureConfig
+from rig.capture import Capture, CaptureConfig, progress_line
 from rig.cli import main as rig_main
 from rig.info import session_info
 from rig.session import open_session
@@ -133,6 +134,30 @@ def test_syncbox_alone_records_beside_a_simulated_thermal_camera(tmp_path):
     assert len(s.thermal) >= 50 and not s.rgb
     markers = [e for e in s.events if e["event"] == "marker"]
     assert markers and all("box_us" in e and not e.get("simulated") for e in markers)
+
+
+def test_progress_line_shows_both_streams_and_their_losses():
+    streams = {"thermal": {"frames": 1802, "fps": 29.96, "incomplete": 3, "dropped": 1, "resent": 40},
+               "rgb": {"frames": 1750, "files": 6, "fps": 30.04, "dropped": 2}}
+    line = progress_line(60.04, 60, streams, 118, 2.25, 140.4)
+    assert line == ("  60.0/60 s | thermal 1802 (30.0 fps) incomplete 3 dropped 1 resent 40 | rgb 1750 in 6 files "
+                    "(30.0 fps) dropped 2 | markers 118 | sync residual 2.2 ms offset +140 ms")
+    streams["thermal"].pop("resent")
+    line = progress_line(1.5, 5, streams, 0, None, None)
+    assert "incomplete 3 dropped 1 |" in line and line.endswith("sync residual -")
+
+
+def test_final_progress_line_reports_the_real_rates(tmp_path, capsys):
+    """A 3 s simulated capture ends with the recording's time and rates (device clock, phone
+    PTS), not the arrivals of its last seconds (which fall to 0 while the capture shuts down)."""
+    Capture(CaptureConfig(duration_s=3.0, out=tmp_path / "s", sim_scene="synthetic", sim_segment_s=2.0)).run()
+    final = capsys.readouterr().err.split("\r")[-1]
+    m = re.match(r"\s*([\d.]+)/3 s \| thermal (\d+) \(\s*([\d.]+) fps\) incomplete 0 dropped 0 resent 0 "
+                 r"\| rgb (\d+) in (\d+) files \(\s*([\d.]+) fps\) dropped (\d+) \| markers (\d+)", final)
+    assert m, final
+    elapsed, th, th_fps, rgb, files, rgb_fps, rgb_dropped, markers = map(float, m.groups())
+    assert 3.0 <= elapsed < 3.8 and th >= 75 and th_fps == pytest.approx(30, abs=1.5)
+    assert rgb >= 60 and files >= 1 and rgb_fps == pytest.approx(30, abs=1.5) and markers >= 2
 
 
 def test_kill_9_during_capture_keeps_every_committed_frame(tmp_path):
