@@ -58,6 +58,7 @@ def session_info(session: Session, resync: bool = False) -> dict:
     return {"path": str(session.path), "closed": session.closed,
             "duration_s": round(float(max(spans)), 3) if spans else 0.0,
             "sync_residual_ms": None if sync_res.residual_ms is None else round(sync_res.residual_ms, 3),
+            "sync_residual_note": sync_res.residual_note,
             "streams": {"thermal": thermal, "rgb": rgb},
             "sync": {"method": sync_res.method, "rgb_offset_ms": sync_res.rgb_offset_ms,
                      "drift_ppm": sync_res.drift_ppm, "drift_sd_ppm": sync_res.drift_sd_ppm,
@@ -99,8 +100,8 @@ def main(args) -> int:
     print(f"  rgb        {rgb['frames']} frames in {rgb['files']} files ({rgb['dropped']} dropped), {rgb['fps']:.2f} fps")
     s = info["sync"]
     res = info["sync_residual_ms"]
+    res_text = f"{res:.1f} ms" if res is not None else f"- ({info['sync_residual_note']})"
     sd = "" if s["drift_sd_ppm"] is None else f" +- {s['drift_sd_ppm']:.0f}"
     print(f"  sync       {s['method']}, phone offset {s['rgb_offset_ms'] if s['rgb_offset_ms'] is None else round(s['rgb_offset_ms'], 1)} ms, "
-          f"drift {s['drift_ppm']:.0f}{sd} ppm ({s['drift_method']}), residual {'-' if res is None else f'{res:.1f} ms'}, "
-          f"{info['pairs']} pairs")
+          f"drift {s['drift_ppm']:.0f}{sd} ppm ({s['drift_method']}), residual {res_text}, {info['pairs']} pairs")
     return 0

@@ -27,6 +27,7 @@ log = logging.getLogger(__name__)
 THUMB_SIZE = (64, 48)          # images are compared at this size for the energy signals
 GRID_S = 0.002
 WINDOW_S = 6.0
+MIN_WINDOW_S = 2.0             # files shorter than 2 windows get half-file windows, down to this
 MIN_DRIFT_SIGMAS = 3.0         # keep a phone drift only when it stands out of its uncertainty
 MAX_DRIFT = 1e-3               # 1000 ppm: beyond any quartz; a bigger fit is a wrong peak
 DRIFT_STEP = 1e-6              # slope grid of the marker drift fit (1 ppm)
@@ -207,6 +208,7 @@ class SyncResult:
     rgb_offset_ms: float | None     # mean file offset (the phone clock error, as seen by sync)
     drift_sd_ppm: float | None = None   # 1 sigma of the drift fit (None: no fit was possible)
     drift_method: str = "none"      # "markers" (switch bounds), "windows" or "none" (no fit)
+    residual_note: str | None = None    # why residual_ms is None
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -328,12 +330,13 @@ def fit_between_bounds(bounds: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 
 def window_offsets(ref_t, ref_e, t: np.ndarray, e: np.ndarray, model) -> list[tuple[float, float]]:
-    """Offsets of WINDOW_S windows along one file (midpoint times t (N,), energies e (N, C)),
-    overlapping by half, each searched within 30 ms of `model(time)`. -> [(window middle,
-    offset)] of windows that correlate (> 0.3)."""
+    """Offsets of windows along one file (midpoint times t (N,), energies e (N, C)), WINDOW_S
+    long or, in a shorter file, half of it (at least MIN_WINDOW_S: a short file still shows its
+    scatter), overlapping by half, each searched within 30 ms of `model(time)`. -> [(window
+    middle, offset)] of windows that correlate (> 0.3)."""
     span = float(t[-1] - t[0]) if len(t) else 0.0
-    win = WINDOW_S
-    if span < win:
+    win = min(WINDOW_S, span / 2)
+    if win < MIN_WINDOW_S:
         return []
     n_win = max(2, int(span // (win / 2)) - 1)
     out = []
@@ -410,8 +413,21 @@ def file_offsets(files: dict[str, dict], ref_t: np.ndarray, ref_e: np.ndarray,
         method = "none" if sd is None else "windows"
     residual = (float(np.sqrt(((rows[:, 1] - slope * rows[:, 0]) ** 2).mean()) * 1e3)
                 if len(rows) >= 2 else None)
-    drift_ppm = -slope / (1 + slope) * 1e6      # offset slope -> phone clock rate error
+    drift_ppm = -slope / (1 + slope) * 1e6 + 0.0    # offset slope -> phone clock rate error (no -0)
     return out, drift_ppm, None if sd is None else sd * 1e6, residual, method
+
+
+def residual_note(files: dict[str, dict], windows: int) -> str | None:
+    """Why a sync has no residual (None if it has one: 2 or more window offsets)."""
+    if windows >= 2:
+        return None
+    if not files:
+        return "no phone video to sync"
+    longest = max((np.ptp(f["t"]) if len(f["t"]) > 1 else 0.0) for f in files.values())
+    if longest < 2 * MIN_WINDOW_S:
+        return (f"phone files too short for a residual: the longest is {longest:.1f} s, windows of "
+                f"{MIN_WINDOW_S:g} s need {2 * MIN_WINDOW_S:g} s")
+    return f"{windows} window of the phone files correlated with the reference; 2 are needed"
 
 
 def thermal_gaps(times: np.ndarray, dropped_before: np.ndarray) -> list[dict]:
@@ -456,6 +472,9 @@ def synchronise(thermal: list[dict], rgb: list[dict], events: list[dict], tick_h
     switches = np.array([e["host_s"] for e in events if e.get("event") == "marker" and "host_s" in e])
     method = "none"
     results, drift, drift_sd, residual, drift_method = [], 0.0, None, None, "none"
+    note = None if files else "no phone video to sync"
+    if files and len(th_t) < 3:
+        note = "too few thermal frames with device timestamps to sync"
     if files and len(th_t) >= 3:
         if len(switches) >= 2:
             period = float(np.median(np.diff(th_t)))
@@ -467,9 +486,10 @@ def synchronise(thermal: list[dict], rgb: list[dict], events: list[dict], tick_h
             method = "xcorr"
         results, drift, drift_sd, residual, drift_method = file_offsets(
             files, ref_t, ref_e, switches=switches if method == "markers" else None)
+        note = residual_note(files, sum(len(f.windows) for f in results))
     offsets = [f.offset_s for f in results if np.isfinite(f.offset_s)]
     return SyncResult(method, asdict(clock) if clock else None, results, drift, residual, gaps,
-                      float(np.mean(offsets) * 1e3) if offsets else None, drift_sd, drift_method)
+                      float(np.mean(offsets) * 1e3) if offsets else None, drift_sd, drift_method, note)
 
 
 def pair_frames(thermal_s: np.ndarray, rgb_s: np.ndarray, max_dt_s: float) -> list[tuple[int, int, float]]:

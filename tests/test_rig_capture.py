@@ -101,7 +101,7 @@ def test_nuc_events_are_written_to_events_jsonl(tmp_path):
     assert len(pauses) == sum(g["kind"] == "pause (NUC)" for g in s.sync["thermal_gaps"])
 
 
-def test_phone_drop_alone_records_beside_a_simulated_thermal_camera(tmp_path):
+def test_phone_drop_alone_records_beside_a_simulated_thermal_camera(tmp_path, capsys):
     """Only --phone-drop named: the simulation supplies the thermal camera, no simulated phone or lamp."""
     drop = tmp_path / "drop"
     drop.mkdir()
@@ -119,6 +119,10 @@ def test_phone_drop_alone_records_beside_a_simulated_thermal_camera(tmp_path):
     assert not (tmp_path / ".s.sim-phone-drop").exists()            # no simulated phone
     assert not any(e["event"] == "marker" for e in s.events)      # no simulated lamp
     assert "sim_scene" not in s.meta and not s.summary["stats"]["errors"]
+    # a 1 s phone file has no residual, and rig info says why
+    capsys.readouterr()
+    assert rig_main(["info", str(tmp_path / "s")]) == 0
+    assert "residual - (phone files too short for a residual: the longest is 1.0 s" in capsys.readouterr().out
 
 
 def test_syncbox_alone_records_beside_a_simulated_thermal_camera(tmp_path):

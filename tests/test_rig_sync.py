@@ -171,3 +171,17 @@ def test_phone_drift_fitted_from_lamp_markers(tmp_path):
         assert res.files[0].offset_s * 1e3 == pytest.approx(true_offset_ms(res, rgb, times), abs=5.0)
         assert np.abs(mapping_error_ms(res, rgb, times)).max() < 5.0
         (tmp_path / "IMG_0001.MOV").unlink()
+
+
+def test_short_files_get_a_residual_or_say_why_not(tmp_path):
+    """A 5 s capture's phone file (~4.4 s) is shorter than the 6 s window: half-file windows still
+    measure its residual; a ~2.4 s file cannot have one, and the result says why."""
+    thermal, rgb, events, times, epoch, _ = simulate(tmp_path, 5.0, lamp_period_s=1.0)
+    res = synchronise(thermal, rgb, events, 1e9, epoch)
+    assert res.residual_ms is not None and res.residual_ms < 10 and res.residual_note is None
+    assert len(res.files[0].windows) >= 2 and np.abs(mapping_error_ms(res, rgb, times)).max() < 10
+    (tmp_path / "IMG_0001.MOV").unlink()
+    thermal, rgb, events, times, epoch, _ = simulate(tmp_path, 3.0, lamp_period_s=1.0)
+    res = synchronise(thermal, rgb, events, 1e9, epoch)
+    assert res.residual_ms is None and "too short" in res.residual_note and "2.4 s" in res.residual_note
+    assert synchronise(thermal, [], events, 1e9, epoch).residual_note == "no phone video to sync"
