@@ -206,3 +206,20 @@ def test_devices_lists_what_it_can(capsys):
     assert all("port" in p for p in d["serial"])
     if not d["phones"]:
         assert d["phones_note"] is None or "usb" in d["phones_note"].lower()
+
+
+def test_devices_without_libusb_says_what_to_install(monkeypatch, capsys):
+    """pyusb raises NoBackendError where libusb-1.0 is missing: `rig devices` still lists the
+    rest and says what to install."""
+    usb_core = pytest.importorskip("usb.core")
+
+    def no_backend(*args, **kw):
+        raise usb_core.NoBackendError("No backend available")
+    monkeypatch.setattr(usb_core, "find", no_backend)
+    assert rig_main(["devices", "--timeout", "0.1"]) == 0
+    out = capsys.readouterr().out
+    assert "Phones (Apple USB):\n  none (libusb is not installed (apt-get install libusb-1.0-0))" in out
+    assert "GigE Vision cameras:" in out and "Serial ports:" in out
+    assert rig_main(["devices", "--json", "--timeout", "0.1"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["phones"] == [] and "libusb-1.0-0" in d["phones_note"]
