@@ -27,7 +27,8 @@ from rig.drivers.gige import GvcpError, gvsp
 from rig.drivers.gige.features import GenicamXmlError
 from rig.drivers.syncbox import SyncBoxError
 from rig.drivers.gige.stream import Frame, StreamConfig
-from rig.drivers.phone import PHOTO_SUFFIXES, DropFolder, probe_video
+from rig.drivers.phone import PHOTO_SUFFIXES, DropFolder, probe_video, pts_drops
+from rig.info import session_info
 from rig.session import SessionWriter, open_session
 from rig.sim.tabletop import VARIANTS
 from rig.sync import change_energy, synchronise_session, thumbnail
@@ -63,8 +64,13 @@ class CaptureConfig:
 @dataclass
 class CaptureStats:
     thermal_frames: int = 0
+    thermal_incomplete: int = 0
+    thermal_dropped: int = 0                # frames lost entirely (block ids missing)
+    thermal_resent: int = 0                 # packets recovered by PACKETRESEND
     rgb_frames: int = 0
     rgb_files: int = 0
+    rgb_dropped: int = 0                    # judged by PTS gaps
+    rgb_span_s: float = 0.0                 # summed PTS span of the videos (for their frame rate)
     markers: int = 0
     errors: list[str] = field(default_factory=list)
     gige_stream: dict | None = None         # receiver counters (packets, resends, duplicates, ...)
@@ -74,22 +80,65 @@ def default_out() -> Path:
     return Path("sessions") / dt.datetime.now().strftime("%Y%m%d-%H%M%S")
 
 
+def progress_line(elapsed_s: float, duration_s: float, streams: dict, markers: int,
+                  residual_ms: float | None, offset_ms: float | None) -> str:
+    """The `rig capture` status line. streams as `rig info` has them: {"thermal": {"frames",
+    "fps", "incomplete", "dropped", "resent" (packets, optional)}, "rgb": {"frames", "files",
+    "fps", "dropped"}}."""
+    th, rgb = streams["thermal"], streams["rgb"]
+    resent = f" resent {th['resent']}" if th.get("resent") is not None else ""
+    res = "-" if residual_ms is None else f"{residual_ms:.1f} ms"
+    off = "" if offset_ms is None else f" offset {offset_ms:+.0f} ms"
+    return (f"{elapsed_s:6.1f}/{duration_s:.0f} s | thermal {th['frames']} ({th['fps']:4.1f} fps) incomplete "
+            f"{th['incomplete']} dropped {th['dropped']}{resent} | rgb {rgb['frames']} in {rgb['files']} files "
+            f"({rgb['fps']:4.1f} fps) dropped {rgb['dropped']} | markers {markers} | sync residual {res}{off}")
+
+
+def nuc_pause(prev: Frame | None, f: Frame, period_s: float, tick_hz: float) -> dict | None:
+    """The NUC pause before frame f, if any: f follows `prev` with no frame lost between
+    (dropped_before 0) yet more than 1.5 frame periods later, by device time (host arrival time
+    when a leader was lost). -> nuc event fields (host_ns: last frame before the pause,
+    end_host_ns: f, gap_s) or None."""
+    if prev is None or f.dropped_before:
+        return None
+    if prev.timestamp and f.timestamp:
+        gap_s = (f.timestamp - prev.timestamp) / tick_hz
+    else:
+        gap_s = (f.host_ns - prev.host_ns) / 1e9
+    if gap_s <= 1.5 * period_s:
+        return None
+    return {"source": "pause", "host_ns": prev.host_ns, "end_host_ns": f.host_ns, "gap_s": gap_s}
+
+
+def simulated_parts(camera: str | None, phone_drop: Path | None, syncbox: str | None) -> tuple[str, ...]:
+    """Parts of the rig the simulation supplies: all ("thermal", "phone", "syncbox") when no
+    device is named; else the thermal camera if it is not named (every session has a thermal
+    stream). A simulated phone or lamp beside named devices would record another scene than
+    theirs, so those come only with the whole simulated rig."""
+    if not (camera or phone_drop or syncbox):
+        return ("thermal", "phone", "syncbox")
+    return () if camera else ("thermal",)
+
+
 class Capture:
     def __init__(self, config: CaptureConfig):
         self.cfg = config
-        self.simulated = not (config.camera or config.phone_drop or config.syncbox)
+        self.sim_parts = simulated_parts(config.camera, config.phone_drop, config.syncbox)
+        self.simulated = len(self.sim_parts) == 3          # the whole simulated rig
         self.out = Path(config.out or default_out())
         self.stats = CaptureStats()
         self.frames: queue.Queue[Frame] = queue.Queue()
         self.stop = threading.Event()
         self.threads: list[threading.Thread] = []
         self.camera = None              # FlirA700 when a real camera is used
+        self._camera_events_written = 0
         self.sim_camera = None
         self.sim_phone = None
         self.box = None
         self.lamp = None                # simulated sync-box lamp
         self.drop: DropFolder | None = None
         self.t_start = 0.0
+        self.t_stop = None              # host s the recording ended
         self._rate: list[tuple[float, int]] = []      # (time, thermal frames) for the fps shown
         # beside the session (same file system, so files are hard-linked in), not inside it
         self.sim_drop_dir = self.out.parent / f".{self.out.name}.sim-phone-drop"
@@ -97,7 +146,8 @@ class Capture:
     # -- set-up -----------------------------------------------------------------------------
     def _open_devices(self) -> dict:
         cfg = self.cfg
-        meta: dict = {"simulated": self.simulated, "requested_duration_s": cfg.duration_s,
+        meta: dict = {"simulated": self.simulated, "simulated_parts": list(self.sim_parts),
+                      "requested_duration_s": cfg.duration_s,
                       "host": platform.node(), "created": dt.datetime.now(dt.timezone.utc).isoformat()}
         if cfg.camera:
             self.camera = flir.FlirA700.open(cfg.camera)
@@ -105,20 +155,21 @@ class Capture:
             cam = self.camera.camera
             meta["thermal"] = {"source": cfg.camera, "tick_hz": cam.tick_hz,
                                "device": asdict(cam.info) if cam.info else None}
-        elif self.simulated:
+        else:
             from rig.simulated import Lamp, SimClock, SimThermalCamera, default_scene
-            self.lamp = Lamp() if cfg.sim_lamp else None
+            self.lamp = Lamp() if cfg.sim_lamp and "syncbox" in self.sim_parts else None
             self.scene = default_scene(cfg.seed, lamp=self.lamp, kind=cfg.sim_scene, variant=cfg.sim_variant,
                                        key_hz=cfg.sim_keyframe_hz, render_scale=cfg.sim_render_scale)
             if hasattr(self.scene, "prerender"):
                 if cfg.progress:
                     print(f"rendering the simulated world ({self.scene.n_keys} keyframes per camera)...",
                           file=sys.stderr, flush=True)
-                self.scene.prerender({"thermal": (640, 480), "rgb": (640, 480)}, until_s=cfg.duration_s + 1)
+                kinds = ("thermal", "rgb") if "phone" in self.sim_parts else ("thermal",)
+                self.scene.prerender({k: (640, 480) for k in kinds}, until_s=cfg.duration_s + 1)
             now = time.monotonic()
             self.sim_camera = SimThermalCamera(self.scene, ir_format=cfg.ir_format, scene_t0=now,
                                                clock=SimClock(5000.0, 20.0, now), seed=cfg.seed)
-            if hasattr(self.scene, "describe"):
+            if self.simulated and hasattr(self.scene, "describe"):
                 # the simulated rig's "factory calibration": what a real rig gets from `rig calibrate`
                 meta["sim_scene"] = self.scene.describe()
             meta["thermal"] = {"source": "simulated", "tick_hz": self.sim_camera.tick_hz,
@@ -126,7 +177,7 @@ class Capture:
         if cfg.phone_drop:
             self.drop = DropFolder(cfg.phone_drop, settle_s=cfg.settle_s)
             meta["rgb"] = {"source": str(cfg.phone_drop)}
-        elif self.simulated:
+        elif "phone" in self.sim_parts:
             from rig.simulated import SimPhone
             drop = self.sim_drop_dir
             drop.mkdir(parents=True, exist_ok=True)
@@ -162,8 +213,10 @@ class Capture:
             log.exception("thermal source failed")
 
     def _thermal_writer(self, writer: SessionWriter) -> None:
-        prev = None
+        prev = None                                    # thumbnail of the last complete frame
+        last = None                                    # last frame written
         epoch = -1
+        tick_hz = self.camera.camera.tick_hz if self.camera is not None else self.sim_camera.tick_hz
         while not (self.stop.is_set() and self.frames.empty() and not self._source_alive()):
             try:
                 batch = [self.frames.get(timeout=0.2)]
@@ -171,12 +224,15 @@ class Capture:
                 continue
             while not self.frames.empty() and len(batch) < 64:
                 batch.append(self.frames.get_nowait())
-            items = []
+            items, pauses = [], []
             for f in batch:
                 e = self._epoch_of(f)
                 if e != epoch:
                     writer.add_event({"event": "epoch", "epoch": e, **self._epoch_meta(f), "host_ns": f.host_ns})
                     epoch = e
+                elif (pause := nuc_pause(last, f, 1 / flir.A700_FPS, tick_hz)) is not None:
+                    pauses.append({"event": "nuc", **pause, "frame": writer.n_thermal + len(items)})
+                last = f
                 counts = f.array()
                 th = thumbnail(counts)
                 items.append((f.data, {
@@ -188,7 +244,12 @@ class Capture:
                     "resent_packets": f.resent_packets, "dropped_before": f.dropped_before,
                     "change": change_energy(prev if f.complete else None, th)}))
                 prev = th if f.complete else prev
+                self.stats.thermal_incomplete += not f.complete
+                self.stats.thermal_dropped += f.dropped_before
+                self.stats.thermal_resent += f.resent_packets
             writer.add_thermal(items)
+            for event in pauses:                       # after the frames they point to are committed
+                writer.add_event(event)
             self.stats.thermal_frames += len(items)
 
     def _source_alive(self) -> bool:
@@ -230,8 +291,11 @@ class Capture:
                 if self.sim_phone is not None:    # simulated rig: the file's truth, for grading live
                     record["sim_truth"] = next((t for t in self.sim_phone.truth if t["file"] == path.name), None)
                 writer.add_rgb_file(path, frames, record)
+                pts = [f["pts_s"] for f in frames]
                 self.stats.rgb_frames += len(frames)
                 self.stats.rgb_files += 1
+                self.stats.rgb_dropped += pts_drops(pts)
+                self.stats.rgb_span_s += max(pts) - min(pts) if len(pts) > 1 else 0.0
         except Exception as exc:          # a broken file must not stop the capture
             self.stats.errors.append(f"{path.name}: {exc}")
             writer.add_event({"event": "rgb_error", "file": str(path), "error": str(exc), "host_ns": arrived})
@@ -252,6 +316,15 @@ class Capture:
                 self.stats.markers += 1
                 if state and self.stop.wait(self.cfg.marker_on_s):
                     break
+
+    def _camera_events(self, writer: SessionWriter) -> None:
+        """Persist what the camera profile logged since the last call (commanded NUCs, IRFormat
+        changes)."""
+        if self.camera is not None:
+            new = self.camera.events[self._camera_events_written:]
+            self._camera_events_written += len(new)
+            for event in new:
+                writer.add_event(event)
 
     def _poll_syncbox(self, writer: SessionWriter) -> None:
         self.box.ping()
@@ -289,6 +362,7 @@ class Capture:
             try:
                 while (elapsed := time.monotonic() - self.t_start) < cfg.duration_s:
                     time.sleep(0.5)
+                    self._camera_events(writer)
                     if self.box is not None:
                         self._poll_syncbox(writer)
                     if time.monotonic() >= next_sync:
@@ -302,8 +376,9 @@ class Capture:
             except KeyboardInterrupt:
                 print("\ninterrupted: finishing the session", file=sys.stderr)
         finally:
+            self.t_stop = time.monotonic()
             if self.sim_phone is not None:
-                self.sim_phone.stopped_at = time.monotonic()
+                self.sim_phone.stopped_at = self.t_stop
             self.stop.set()
             self._shutdown(writer)
         reader = open_session(self.out)
@@ -316,7 +391,12 @@ class Capture:
             shutil.rmtree(self.sim_drop_dir, ignore_errors=True)
         writer.close(summary)
         if cfg.progress:
-            self._progress(time.monotonic() - self.t_start, final, end="\n")
+            # the recording's real rates (device clock, PTS), not the last seconds' arrivals
+            streams = session_info(reader)["streams"]
+            streams["thermal"]["resent"] = self.stats.thermal_resent
+            line = progress_line(self.t_stop - self.t_start, cfg.duration_s, streams, self.stats.markers,
+                                 final.residual_ms, final.rgb_offset_ms)
+            print(f"\r{line}   ", file=sys.stderr, flush=True)
         return summary
 
     def _spawn(self, name: str, target, *args) -> None:
@@ -332,6 +412,7 @@ class Capture:
                 self.stats.errors.append(f"stopping camera: {exc}")
         for t in self.threads:
             t.join(timeout=120)
+        self._camera_events(writer)
         if self.box is not None:
             self._poll_syncbox(writer)
             rate, offset = self.box.clock()
@@ -342,37 +423,41 @@ class Capture:
                 self.stats.gige_stream = self.camera.camera.stream.stats.as_dict()
             self.camera.close()
 
-    def _progress(self, elapsed: float, sync, end: str = "") -> None:
-        th = self.stats.thermal_frames
+    def _progress(self, elapsed: float, sync) -> None:
+        st = self.stats
         now = time.monotonic()
-        self._rate.append((now, th))
+        self._rate.append((now, st.thermal_frames))
         while len(self._rate) > 2 and now - self._rate[0][0] > 2.0:
             self._rate.pop(0)
         (t0, n0), (t1, n1) = self._rate[0], self._rate[-1]
-        fps = (n1 - n0) / (t1 - t0) if t1 > t0 else 0.0
-        losses = ""
-        if self.camera is not None and self.camera.camera.stream is not None:
-            s = self.camera.camera.stream.stats
-            losses = f" incomplete {s.incomplete} dropped {s.dropped} resent {s.resent_packets}"
-        res = f"{sync.residual_ms:.1f} ms" if sync is not None and sync.residual_ms is not None else "-"
-        off = f" offset {sync.rgb_offset_ms:+.0f} ms" if sync is not None and sync.rgb_offset_ms is not None else ""
-        print(f"\r{elapsed:6.1f}/{self.cfg.duration_s:.0f} s | thermal {th} ({fps:4.1f} fps){losses}"
-              f" | rgb {self.stats.rgb_frames} in {self.stats.rgb_files} files | markers {self.stats.markers}"
-              f" | sync residual {res}{off}   ", end=end, file=sys.stderr, flush=True)
+        streams = {"thermal": {"frames": st.thermal_frames, "fps": (n1 - n0) / (t1 - t0) if t1 > t0 else 0.0,
+                               "incomplete": st.thermal_incomplete, "dropped": st.thermal_dropped,
+                               "resent": st.thermal_resent},
+                   "rgb": {"frames": st.rgb_frames, "files": st.rgb_files, "dropped": st.rgb_dropped,
+                           # phone files arrive whole, after the fact: their recorded rate
+                           "fps": (st.rgb_frames - st.rgb_files) / st.rgb_span_s if st.rgb_span_s else 0.0}}
+        line = progress_line(elapsed, self.cfg.duration_s, streams, st.markers,
+                             sync.residual_ms if sync is not None else None,
+                             sync.rgb_offset_ms if sync is not None else None)
+        print(f"\r{line}   ", end="", file=sys.stderr, flush=True)
 
 
 def register(sub) -> None:
     p = sub.add_parser(
         "capture", help="record a session (simulated rig when no device is named)",
-        description="Record thermal frames, phone videos and sync-box markers into a crash-safe "
-                    "session folder (see the README, 'Session folder'). With no --camera, "
-                    "--phone-drop or --syncbox the simulated rig is captured.",
+        description="Record thermal frames, phone videos and sync-box markers into a crash-safe\n"
+                    "session folder (see the README, 'Session folder').\n"
+                    "With no --camera, --phone-drop or --syncbox the simulated rig is captured (thermal\n"
+                    "camera, phone and sync-box lamp). With --phone-drop and/or --syncbox but no --camera,\n"
+                    "those devices are recorded beside the simulated thermal camera (no simulated phone\n"
+                    "or lamp then: they would show another scene than the real devices).",
         formatter_class=HelpFormatter,
         epilog="examples:\n  rig capture --duration 10 --out /tmp/s1            # simulated rig\n"
+               "  rig capture --phone-drop ~/Drop --duration 30      # real phone, simulated thermal camera\n"
                "  rig capture --camera gige://192.168.1.20 --phone-drop ~/Drop --syncbox /dev/ttyACM0\n"
                "  rig info /tmp/s1 --json")
     p.add_argument("--duration", type=float, default=60.0, help="seconds to record")
-    p.add_argument("--camera", help="thermal camera, gige://HOST[:PORT]")
+    p.add_argument("--camera", help="thermal camera, gige://HOST[:PORT] (not named: simulated)")
     p.add_argument("--phone-drop", type=Path, help="folder where the phone's files arrive")
     p.add_argument("--syncbox", help="serial port of the sync box, e.g. /dev/ttyACM0")
     p.add_argument("--out", type=Path, help="session folder to create (default sessions/<date-time>)")

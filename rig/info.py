@@ -7,6 +7,7 @@ import sys
 import numpy as np
 
 from rig.cli_format import HelpFormatter
+from rig.drivers.phone import pts_drops
 from rig.session import Session, open_session
 from rig.sync import SyncResult, FileSync, fit_clock, pair_frames, synchronise_session
 
@@ -43,10 +44,7 @@ def session_info(session: Session, resync: bool = False) -> dict:
     for name in files:
         recs = [r for r in session.rgb if r["file"] == name]
         pts = np.array([r["pts_s"] for r in recs])
-        if len(pts) > 2:
-            d = np.diff(pts)
-            med = np.median(d)
-            dropped += int(sum(round(g / med) - 1 for g in d if g > 1.5 * med))
+        dropped += pts_drops(pts)
         if any(f.file == name for f in sync_res.files):
             fs = next(f for f in sync_res.files if f.file == name)
             rgb_t.append(sync_res.rgb_host_s(name, fs.nominal_start_s + pts))
@@ -60,9 +58,11 @@ def session_info(session: Session, resync: bool = False) -> dict:
     return {"path": str(session.path), "closed": session.closed,
             "duration_s": round(float(max(spans)), 3) if spans else 0.0,
             "sync_residual_ms": None if sync_res.residual_ms is None else round(sync_res.residual_ms, 3),
+            "sync_residual_note": sync_res.residual_note,
             "streams": {"thermal": thermal, "rgb": rgb},
             "sync": {"method": sync_res.method, "rgb_offset_ms": sync_res.rgb_offset_ms,
-                     "drift_ppm": sync_res.drift_ppm,
+                     "drift_ppm": sync_res.drift_ppm, "drift_sd_ppm": sync_res.drift_sd_ppm,
+                     "drift_method": sync_res.drift_method,
                      "files": [{"file": f.file, "offset_ms": f.offset_s * 1e3, "correlation": f.correlation}
                                for f in sync_res.files]},
             "pairs": len(pairs),
@@ -100,6 +100,8 @@ def main(args) -> int:
     print(f"  rgb        {rgb['frames']} frames in {rgb['files']} files ({rgb['dropped']} dropped), {rgb['fps']:.2f} fps")
     s = info["sync"]
     res = info["sync_residual_ms"]
+    res_text = f"{res:.1f} ms" if res is not None else f"- ({info['sync_residual_note']})"
+    sd = "" if s["drift_sd_ppm"] is None else f" +- {s['drift_sd_ppm']:.0f}"
     print(f"  sync       {s['method']}, phone offset {s['rgb_offset_ms'] if s['rgb_offset_ms'] is None else round(s['rgb_offset_ms'], 1)} ms, "
-          f"drift {s['drift_ppm']:.0f} ppm, residual {'-' if res is None else f'{res:.1f} ms'}, {info['pairs']} pairs")
+          f"drift {s['drift_ppm']:.0f}{sd} ppm ({s['drift_method']}), residual {res_text}, {info['pairs']} pairs")
     return 0

@@ -9,7 +9,8 @@ Layout (documented in the README, section "Session folder"):
                                 scale, losses, where its bytes are)
       rgb/IMG_0001.MOV ...      phone files as received (hard-linked or copied, never re-encoded)
       rgb.jsonl                 one record per RGB frame (file, frame number, PTS, time base)
-      events.jsonl              acquisition epochs, NUCs, sync-box markers, file arrivals, losses
+      events.jsonl              acquisition epochs, NUCs (commanded, detected pauses), IRFormat
+                                changes, sync-box markers and clock, file arrivals
       sync.json                 latest sync estimate (replaced atomically)
       closed.json               written at a clean end (summary); absent while capturing / after a crash
 

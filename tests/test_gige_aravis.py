@@ -4,6 +4,7 @@ One fake-camera process per module (its register state and frame counter persist
 lives); `restart()` gives a test a fresh one. Skipped only where the binary is missing.
 """
 import shutil
+import socket
 import subprocess
 import time
 
@@ -12,6 +13,7 @@ import pytest
 
 from rig.drivers.gige import ControlConfig, GigECamera, GigEDevice, GvcpError, GvcpTimeout, discover
 from rig.drivers.gige import gvcp
+from rig.drivers.gige.device import broadcast_addresses
 from rig.drivers.gige.features import fetch_genicam_xml
 
 ARV_FAKE = shutil.which("arv-fake-gv-camera-0.8")
@@ -86,6 +88,29 @@ def test_discovery_and_identity(aravis):
     assert len(found) == 1
     d = found[0]
     assert (d.model, d.serial, d.ip) == ("Fake", "GV01", "127.0.0.1")
+
+
+def _can_broadcast() -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+        try:
+            s.sendto(b"", ("255.255.255.255", 9))          # discard port
+        except OSError:
+            return False
+    return True
+
+
+def test_discovery_by_broadcast_only(aravis):
+    """No unicast address given: the limited broadcast (and each interface's) reaches the fake,
+    which reports 127.0.0.1 as its own address whatever route its answer took."""
+    if not _can_broadcast():
+        pytest.skip("no route for 255.255.255.255 on this machine")
+    addresses = broadcast_addresses() + ["255.255.255.255"]
+    assert "127.0.0.1" not in addresses
+    found = [d for d in discover(addresses) if d.manufacturer == "Aravis"]
+    assert len(found) == 1 and (found[0].model, found[0].serial, found[0].ip) == ("Fake", "GV01", "127.0.0.1")
+    with GigEDevice(found[0].ip) as dev:
+        assert dev.read_reg(0x1F0) == 0x12345678
 
 
 def test_genicam_xml_and_features(aravis):

@@ -86,6 +86,22 @@ def test_heartbeat_keeps_control_and_loss_is_noticed(make_fake):
     dev.close()
 
 
+def test_writemem_round_trip_and_a_retried_request_keeps_its_id(make_fake):
+    fake = make_fake()
+    with GigEDevice(fake.host, fake.port, ControlConfig(timeout_s=0.1, retries=3)) as dev:
+        data = bytes(range(256)) * 4 + b"xyz"            # three WRITEMEMs of <= 512 B, unaligned end
+        dev.write_mem(0x20400, data)
+        assert dev.read_mem(0x20400, len(data)) == data
+        assert fake.stats[f"cmd_{gvcp.Command.WRITEMEM:04x}"] == 3
+        fake.commands.clear()
+        fake.drop_next_commands = 2                      # the first two tries are lost
+        dev.write_mem(0x20800, b"ABCD")
+        tries = [rid for cmd, rid in fake.commands if cmd == gvcp.Command.WRITEMEM]
+        assert len(tries) == 3 and len(set(tries)) == 1 and dev.stats.retries == 2
+        assert dev.read_mem(0x20800, 4) == b"ABCD"
+        assert fake.commands[-1][1] == gvcp.next_req_id(tries[0])     # the next request moves on
+
+
 def test_pending_ack_extends_the_wait(make_fake):
     fake = make_fake(nuc_pending_ms=500)
     ctrl = ControlConfig(timeout_s=0.15, retries=0)      # would time out without PENDING_ACK

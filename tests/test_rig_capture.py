@@ -2,6 +2,7 @@
 a phone drop folder and a sync box, and kill -9 in the middle of a capture."""
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -12,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig.capture import Capture, CaptureConfig
+from rig.capture import Capture, CaptureConfig, progress_line
 from rig.cli import main as rig_main
 from rig.info import session_info
 from rig.session import open_session
@@ -74,6 +75,95 @@ def test_capture_from_gige_phone_folder_and_syncbox(tmp_path):
     assert info["streams"]["thermal"]["incomplete"] == 0 and info["markers"] == len(markers)
 
 
+def test_nuc_events_are_written_to_events_jsonl(tmp_path):
+    """The fake camera pauses for automatic NUCs (0.3 s every 1.5 s) and for one commanded NUC
+    (acked after a 0.6 s PENDING_ACK): each shows in events.jsonl with host times."""
+    with FakeGigECamera(FakeConfig(width=160, height=120, nuc_period_s=1.5, nuc_duration_s=0.3)) as fake:
+        cap = Capture(CaptureConfig(duration_s=4.0, out=tmp_path / "s", camera=fake.url, progress=False))
+        threading.Timer(2.0, lambda: cap.camera.nuc()).start()
+        cap.run()
+        nucs = fake.stats["nucs"]
+    s = open_session(tmp_path / "s")
+    events = [e for e in s.events if e["event"] == "nuc"]
+    commands = [e for e in events if e["source"] == "command"]
+    pauses = [e for e in events if e["source"] == "pause"]
+    assert len(commands) == 1 and commands[0]["done_host_ns"] - commands[0]["host_ns"] >= 0.5e9
+    # NUCs pause 0.3-0.6 s (shorter pauses: the fake's sender thread was late on a busy machine)
+    nuc_pauses = [p for p in pauses if p["gap_s"] > 0.25]
+    assert 2 <= len(nuc_pauses) <= nucs and not any(r["dropped_before"] for r in s.thermal)
+    frames = {r["i"]: r for r in s.thermal}
+    for p in pauses:
+        assert 1.5 / 30 < p["gap_s"] < 1.0 and frames[p["frame"]]["host_ns"] == p["end_host_ns"]
+        assert p["end_host_ns"] - p["host_ns"] == pytest.approx(p["gap_s"] * 1e9, abs=0.05e9)
+    # the commanded NUC paused the stream while it ran
+    c = commands[0]
+    assert any(p["host_ns"] <= c["done_host_ns"] and p["end_host_ns"] >= c["host_ns"] for p in nuc_pauses)
+    assert len(pauses) == sum(g["kind"] == "pause (NUC)" for g in s.sync["thermal_gaps"])
+
+
+def test_phone_drop_alone_records_beside_a_simulated_thermal_camera(tmp_path, capsys):
+    """Only --phone-drop named: the simulation supplies the thermal camera, no simulated phone or lamp."""
+    drop = tmp_path / "drop"
+    drop.mkdir()
+    movie = write_mov(tmp_path / "IMG_0007.MOV", (np.full((48, 64, 3), i * 9, np.uint8) for i in range(25)),
+                      [i / 25 for i in range(25)], time.time())
+    threading.Timer(0.3, drop_slowly, args=(movie, drop), kwargs={"chunk": 4096, "delay_s": 0.01}).start()
+    code = rig_main(["capture", "--duration", "2.5", "--phone-drop", str(drop), "--settle", "0.3",
+                     "--sim-scene", "synthetic", "--out", str(tmp_path / "s"), "--quiet"])
+    assert code == 0
+    s = open_session(tmp_path / "s")
+    assert s.closed and not s.meta["simulated"] and s.meta["simulated_parts"] == ["thermal"]
+    assert s.meta["thermal"]["source"] == "simulated" and s.meta["rgb"]["source"] == str(drop)
+    assert 50 <= len(s.thermal) <= 90 and all(r["complete"] for r in s.thermal)
+    assert len(s.rgb) == 25 and {r["file"] for r in s.rgb} == {"rgb/IMG_0007.MOV"}
+    assert not (tmp_path / ".s.sim-phone-drop").exists()            # no simulated phone
+    assert not any(e["event"] == "marker" for e in s.events)      # no simulated lamp
+    assert "sim_scene" not in s.meta and not s.summary["stats"]["errors"]
+    # a 1 s phone file has no residual, and rig info says why
+    capsys.readouterr()
+    assert rig_main(["info", str(tmp_path / "s")]) == 0
+    assert "residual - (phone files too short for a residual: the longest is 1.0 s" in capsys.readouterr().out
+
+
+def test_syncbox_alone_records_beside_a_simulated_thermal_camera(tmp_path):
+    box = FakeSyncBox()
+    try:
+        code = rig_main(["capture", "--duration", "2.5", "--syncbox", box.port, "--sim-scene", "synthetic",
+                         "--out", str(tmp_path / "s"), "--quiet"])
+    finally:
+        box.close()
+    assert code == 0
+    s = open_session(tmp_path / "s")
+    assert s.meta["simulated_parts"] == ["thermal"] and s.meta["syncbox"]["port"] == box.port
+    assert len(s.thermal) >= 50 and not s.rgb
+    markers = [e for e in s.events if e["event"] == "marker"]
+    assert markers and all("box_us" in e and not e.get("simulated") for e in markers)
+
+
+def test_progress_line_shows_both_streams_and_their_losses():
+    streams = {"thermal": {"frames": 1802, "fps": 29.96, "incomplete": 3, "dropped": 1, "resent": 40},
+               "rgb": {"frames": 1750, "files": 6, "fps": 30.04, "dropped": 2}}
+    line = progress_line(60.04, 60, streams, 118, 2.25, 140.4)
+    assert line == ("  60.0/60 s | thermal 1802 (30.0 fps) incomplete 3 dropped 1 resent 40 | rgb 1750 in 6 files "
+                    "(30.0 fps) dropped 2 | markers 118 | sync residual 2.2 ms offset +140 ms")
+    streams["thermal"].pop("resent")
+    line = progress_line(1.5, 5, streams, 0, None, None)
+    assert "incomplete 3 dropped 1 |" in line and line.endswith("sync residual -")
+
+
+def test_final_progress_line_reports_the_real_rates(tmp_path, capsys):
+    """A 3 s simulated capture ends with the recording's time and rates (device clock, phone
+    PTS), not the arrivals of its last seconds (which fall to 0 while the capture shuts down)."""
+    Capture(CaptureConfig(duration_s=3.0, out=tmp_path / "s", sim_scene="synthetic", sim_segment_s=2.0)).run()
+    final = capsys.readouterr().err.split("\r")[-1]
+    m = re.match(r"\s*([\d.]+)/3 s \| thermal (\d+) \(\s*([\d.]+) fps\) incomplete 0 dropped 0 resent 0 "
+                 r"\| rgb (\d+) in (\d+) files \(\s*([\d.]+) fps\) dropped (\d+) \| markers (\d+)", final)
+    assert m, final
+    elapsed, th, th_fps, rgb, files, rgb_fps, rgb_dropped, markers = map(float, m.groups())
+    assert 3.0 <= elapsed < 3.8 and th >= 75 and th_fps == pytest.approx(30, abs=1.5)
+    assert rgb >= 60 and files >= 1 and rgb_fps == pytest.approx(30, abs=1.5) and markers >= 2
+
+
 def test_kill_9_during_capture_keeps_every_committed_frame(tmp_path):
     out = tmp_path / "s"
     proc = subprocess.Popen([sys.executable, "-m", "rig", "capture", "--duration", "60", "--out", str(out),
@@ -116,3 +206,20 @@ def test_devices_lists_what_it_can(capsys):
     assert all("port" in p for p in d["serial"])
     if not d["phones"]:
         assert d["phones_note"] is None or "usb" in d["phones_note"].lower()
+
+
+def test_devices_without_libusb_says_what_to_install(monkeypatch, capsys):
+    """pyusb raises NoBackendError where libusb-1.0 is missing: `rig devices` still lists the
+    rest and says what to install."""
+    usb_core = pytest.importorskip("usb.core")
+
+    def no_backend(*args, **kw):
+        raise usb_core.NoBackendError("No backend available")
+    monkeypatch.setattr(usb_core, "find", no_backend)
+    assert rig_main(["devices", "--timeout", "0.1"]) == 0
+    out = capsys.readouterr().out
+    assert "Phones (Apple USB):\n  none (libusb is not installed (apt-get install libusb-1.0-0))" in out
+    assert "GigE Vision cameras:" in out and "Serial ports:" in out
+    assert rig_main(["devices", "--json", "--timeout", "0.1"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["phones"] == [] and "libusb-1.0-0" in d["phones_note"]

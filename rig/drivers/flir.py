@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -209,14 +210,18 @@ class FlirA700:
         if streaming:
             self.camera.stop_acquisition()
         self.features.set("IRFormat", ir_format)
-        self.events.append({"event": "ir_format", "ir_format": ir_format, "host_ns": host_ns})
+        self.events.append({"event": "ir_format", "ir_format": ir_format,
+                            "host_ns": time.monotonic_ns() if host_ns is None else host_ns})
         if streaming:
             self.start()
 
     def nuc(self, host_ns: int | None = None) -> None:
-        """Non-uniformity correction (the shutter closes; frames pause or freeze)."""
-        self.features.execute("NUCAction")
-        self.events.append({"event": "nuc", "host_ns": host_ns})
+        """Non-uniformity correction (the shutter closes; frames pause or freeze). Logged with
+        the host time it was commanded (`host_ns`, default now) and acknowledged."""
+        host_ns = time.monotonic_ns() if host_ns is None else host_ns
+        self.features.execute("NUCAction")         # returns once the camera acks (PENDING_ACK first)
+        self.events.append({"event": "nuc", "source": "command", "host_ns": host_ns,
+                            "done_host_ns": time.monotonic_ns()})
 
     def tag(self, frame: Frame) -> Frame:
         """Attach the epoch in force when the frame was produced."""

@@ -66,6 +66,16 @@ class VideoInfo:
                 "creation_unix_s": self.creation_unix_s, "duration_s": self.duration_s}
 
 
+def pts_drops(pts_s) -> int:
+    """Frames missing from a variable-rate video, judged by its (N,) frame times in seconds:
+    an interval over 1.5 median intervals lacks round(interval / median) - 1 frames."""
+    d = np.diff(np.asarray(pts_s, float))
+    if len(d) < 2:
+        return 0
+    med = float(np.median(d))
+    return int(sum(round(g / med) - 1 for g in d if g > 1.5 * med))
+
+
 def probe_video(path: str | Path) -> VideoInfo:
     """Decode a whole video once: per-frame PTS and motion energy (`rig.sync.change_energy` of
     grey thumbnails, 0 for the first), plus the container's creation date."""

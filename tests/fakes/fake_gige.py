@@ -125,6 +125,8 @@ class FakeGigECamera:
         self.sent: collections.OrderedDict[int, tuple[bytes, bytes]] = collections.OrderedDict()
         self.nuc_until = 0.0
         self.stats = collections.Counter()
+        self.drop_next_commands = 0         # ignore this many commands (a lost request), then answer
+        self.commands: list[tuple[int, int]] = []   # (command, req_id) of every command received
         self._t0 = time.monotonic()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -234,6 +236,11 @@ class FakeGigECamera:
                     cmd = gvcp.parse_command(data)
                 except gvcp.GvcpFormatError:
                     self.stats["malformed_commands"] += 1
+                    continue
+                self.commands.append((cmd.command, cmd.req_id))
+                if self.drop_next_commands > 0:
+                    self.drop_next_commands -= 1
+                    self.stats["dropped_commands"] += 1
                     continue
                 if src == self.controller:
                     self.controller_seen = time.monotonic()
