@@ -1,15 +1,17 @@
 """Render speed of the simulated world (rig.sim): RGB and thermal frames at several sizes.
 
-    python bench/sim_render.py --out sim_render.json [--repeats 9]
+    PYTHONPATH=. python bench/sim_render.py --out bench/results/sim_render.json [--repeats 9]
 
-Writes a list of records {"size", "ss", "rgb_ms", "thermal_ms", "pair_ms"} (medians over
-`repeats` frames at different times and rigs, after one warm-up frame). The machine is shared,
-so re-run on a quiet machine for final numbers.
+Writes a list of records {"size", "ss", "rgb_ms", "thermal_ms", "pair_ms", "load_avg_1min"}
+(medians over `repeats` frames at different times and rigs, after one warm-up frame; the
+1-minute load average when the size was done). The machine is shared, so re-run on a quiet
+machine for final numbers. The committed result: bench/results/sim_render.json.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 
 import numpy as np
@@ -43,7 +45,7 @@ def main() -> None:
                           for i in range(args.repeats)])
         rec = {"size": f"{size[0]}x{size[1]}", "ss": supersampling(*size),
                "rgb_ms": float(np.median(times[:, 0])), "thermal_ms": float(np.median(times[:, 1])),
-               "pair_ms": float(np.median(times.sum(axis=1)))}
+               "pair_ms": float(np.median(times.sum(axis=1))), "load_avg_1min": round(os.getloadavg()[0], 2)}
         print(rec, flush=True)
         records.append(rec)
     with open(args.out, "w") as f:

@@ -69,15 +69,21 @@ def _text_size(height: int) -> tuple[float, int]:
     return scale, 1
 
 
+def colorbar_ticks(vmin: float, vmax: float, offset: float = -C0) -> tuple[np.ndarray, list[str]]:
+    """Tick values and labels of a colourbar spanning vmin..vmax kelvin, in the label unit
+    (value + offset: °C by default), with as many decimals as the tick step needs."""
+    ticks = _nice_ticks(vmin + offset, vmax + offset)
+    decimals = 0 if len(ticks) < 2 or ticks[1] - ticks[0] >= 1 else 1 if ticks[1] - ticks[0] >= 0.1 else 2
+    return ticks, [f"{t:.{decimals}f}" for t in ticks]
+
+
 def colorbar(height: int, vmin: float, vmax: float, cmap: str = "ironbow", unit: str = "°C",
              offset: float = -C0) -> np.ndarray:
     """A vertical bar (height, ~60-80, 3) with ticks labelled in `unit`; values are kelvin and
     labels show value + offset (°C by default; use offset 0 and unit 'K' for differences)."""
     scale, thick = _text_size(height)
     lo, hi = vmin + offset, vmax + offset
-    ticks = _nice_ticks(lo, hi)
-    decimals = 0 if len(ticks) < 2 or ticks[1] - ticks[0] >= 1 else 1 if ticks[1] - ticks[0] >= 0.1 else 2
-    labels = [f"{t:.{decimals}f}" for t in ticks]
+    ticks, labels = colorbar_ticks(vmin, vmax, offset)
     text_w = max([cv2.getTextSize(s, _FONT, scale, thick)[0][0] for s in labels + [unit]])
     bar_w, pad, margin = 14, 4, 10
     out = np.full((height, bar_w + 2 * pad + text_w + margin, 3), 255, np.uint8)

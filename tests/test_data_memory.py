@@ -14,8 +14,9 @@ ROOT = Path(__file__).resolve().parents[1]
 N_RGB, N_THERMAL = 500, 100  # all decoded at once: 500 * 3.7 MB + 100 * 1.2 MB = 1.96 GB
 
 
-def _big_dataset(root: Path) -> None:
-    """600 frames of 640x480; pixels are shared hard links so the test writes two PNGs only."""
+def big_dataset(root: Path) -> None:
+    """600 frames of 640x480; pixels are shared hard links so the test writes two PNGs only
+    (bench/data_figures.py measures its memory figures on the same set)."""
     rng = np.random.default_rng(0)
     rgb = rng.integers(0, 256, (480, 640, 3), dtype=np.uint8)
     counts = rng.integers(28000, 32000, (480, 640), dtype=np.uint16)
@@ -37,7 +38,7 @@ def _big_dataset(root: Path) -> None:
 
 
 def test_reading_every_frame_twice_stays_within_the_bound(tmp_path):
-    _big_dataset(tmp_path)
+    big_dataset(tmp_path)
     code = (
         "import resource, sys, json, numpy as np; from recon.data import load_dataset\n"
         "ds = load_dataset(sys.argv[1]); total = 0\n"

@@ -12,6 +12,7 @@ from recon.data import load_dataset
 from recon.data.simulate import SimulateConfig, simulate_dataset
 from recon.eval import RenderError, evaluate_run, write_render
 from recon.eval.renders import render_path
+from recon.viz import colorbar, colormap
 
 
 @pytest.fixture(scope="module")
@@ -76,3 +77,43 @@ def test_missing_and_mismatched_renders_are_named(dataset, tmp_path, capsys):
         evaluate_run(tmp_path, dataset)
     with pytest.raises(RenderError, match="10x10"):
         write_render(tmp_path, victim, np.full((10, 10), 300.0), ds.thermal_scale_k)
+
+
+def test_cli_strips_are_gt_render_error_with_colourbars(dataset, tmp_path):
+    """`recon eval --strips`: one picture per test frame; a thermal strip holds GT | render | °C
+    bar | |error| | K bar, frames enlarged x8 (30 px -> 240 px), a +1.5 K right half shows in the
+    error panel and sets the error bar's range."""
+    ds = load_dataset(dataset)
+    _copy_gt(ds, tmp_path)
+    th = ds.split("thermal", "test")[0]
+    counts = ds.read_raw(th).astype(np.float64)
+    counts[:, 20:] += round(1.5 / ds.thermal_scale_k)
+    write_render(tmp_path, th, counts * ds.thermal_scale_k, ds.thermal_scale_k)
+    assert recon_main(["eval", str(tmp_path), str(dataset), "--no-lpips", "--strips"]) == 0
+    strips = tmp_path / "eval" / "strips"
+    test_frames = ds.split("rgb", "test") + ds.split("thermal", "test")
+    assert sorted(p.relative_to(strips).as_posix() for p in strips.rglob("*.png")) == sorted(
+        f.file_path for f in test_frames)
+
+    picture = cv2.imread(str(strips / th.file_path))[..., ::-1]
+    panel_h, panel_w, gap = 240, 320, 6
+    band = picture.shape[0] - panel_h                             # title band above every panel
+    c_bar = colorbar(panel_h, *ds.thermal_range_k)                 # °C bar of GT and render
+    k_bar = colorbar(panel_h, 0, 1.5, "inferno", unit="K", offset=0.0)
+    assert 10 < band < 60
+    assert picture.shape[1] == 3 * panel_w + c_bar.shape[1] + k_bar.shape[1] + 4 * gap
+    body = picture[band:]
+    x_bar = 2 * (panel_w + gap)
+    np.testing.assert_array_equal(body[:, x_bar:x_bar + c_bar.shape[1]], c_bar)
+    np.testing.assert_array_equal(body[:, -k_bar.shape[1]:], k_bar)
+    x_err = x_bar + c_bar.shape[1] + gap
+    error = body[:, x_err:x_err + panel_w]
+    valid = np.repeat(np.repeat(np.isfinite(ds.image(th)), 8, 0), 8, 1)
+    inferno = colormap("inferno")
+    left, right = error[:, :160][valid[:, :160]], error[:, 160:][valid[:, 160:]]
+    assert left.size and right.size
+    assert (left == inferno[0]).all() and (right == inferno[255]).all()
+
+    rgb = cv2.imread(str(strips / ds.split("rgb", "test")[0].file_path))[..., ::-1]
+    d_bar = colorbar(panel_h, 0, 0.25, "inferno", unit="|d|", offset=0.0)
+    assert rgb.shape == (panel_h + band, 3 * panel_w + d_bar.shape[1] + 3 * gap, 3)

@@ -3,8 +3,8 @@ import cv2
 import numpy as np
 import pytest
 
-from recon.viz import (C0, INVALID_RGB, colorbar, colorize, colormap, rgb_strip, save_png,
-                       thermal_image, thermal_strip)
+from recon.viz import (C0, INVALID_RGB, colorbar, colorbar_ticks, colorize, colormap, rgb_strip,
+                       save_png, thermal_image, thermal_strip)
 from recon.viz import _nice_ticks
 
 
@@ -50,6 +50,39 @@ def test_colorbar_has_a_ramp_and_labels():
     assert _luma(ramp_column[0:1])[0] > _luma(ramp_column[-1:])[0] + 150  # hot on top
     text_area = bar[:, 25:]
     assert (text_area < 100).any()  # black label pixels
+
+
+def test_colorbar_ticks_are_kelvin_converted_to_celsius():
+    ticks, labels = colorbar_ticks(C0 + 10, C0 + 110)          # 283.15 .. 383.15 K
+    np.testing.assert_allclose(ticks, [20, 40, 60, 80, 100])
+    assert labels == ["20", "40", "60", "80", "100"]
+    ticks, labels = colorbar_ticks(294.0, 297.0)                # 20.85 .. 23.85 °C
+    np.testing.assert_allclose(ticks, [21.0, 21.5, 22.0, 22.5, 23.0, 23.5])
+    assert labels == ["21.0", "21.5", "22.0", "22.5", "23.0", "23.5"]
+    _, kelvin_labels = colorbar_ticks(290.0, 350.0, offset=0.0)  # differences / K bars keep kelvin
+    assert kelvin_labels == ["290", "300", "310", "320", "330", "340", "350"]
+
+
+def _longest_run(mask):
+    """(start, stop) of the longest run of True in a 1-D mask."""
+    best, start = (0, 0), None
+    for i, m in enumerate(list(mask) + [False]):
+        if m and start is None:
+            start = i
+        elif not m and start is not None:
+            best, start = max(best, (start, i), key=lambda r: r[1] - r[0]), None
+    return best
+
+
+def test_colorbar_tick_marks_sit_at_the_celsius_values():
+    """The drawn tick marks are where 20, 40 ... 100 °C fall on a 10..110 °C ramp (in kelvin
+    they would be 300, 320 ... K: each mark ~14 px higher)."""
+    bar = colorbar(240, C0 + 10, C0 + 110)
+    top, bottom = _longest_run((bar[:, 8] != 255).any(axis=1))  # the colour ramp's rows
+    marks = [y for y in range(top, bottom + 1) if (bar[y, 19] < 60).all()]  # tick marks, right of the ramp
+    ticks, _ = colorbar_ticks(C0 + 10, C0 + 110)
+    expected = [int(round(bottom - (t - 10) / 100 * (bottom - top))) for t in ticks]
+    assert marks == [y for y in sorted(expected) if y <= bottom]
 
 
 def test_thermal_strip_panels_and_zero_error():
