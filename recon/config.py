@@ -183,8 +183,14 @@ def config_to_dict(cfg: TrainConfig) -> dict:
     return dataclasses.asdict(cfg)
 
 
+# Defaults that changed since runs were first written: a config without the key meant this.
+_PAST_DEFAULTS = {"model": {"deform_geometry": ("rgb", "thermal")}}
+
+
 def config_from_dict(d: dict) -> TrainConfig:
     d = dict(d)
+    for key, past in _PAST_DEFAULTS.items():
+        d[key] = {**past, **d[key]}
     sub = {"model": ModelConfig, "routing": RoutingConfig, "loss": LossConfig,
            "lr": LearningRates, "densify": DensifyConfig}
     for key, cls in sub.items():

@@ -97,6 +97,25 @@ def test_resume_continues_bit_for_bit(scene, tmp_path):
         assert torch.equal(p, b.model.gaussians[k]), k
 
 
+def test_checkpoint_from_before_deform_geometry_still_loads(scene, tmp_path):
+    """Runs written before ModelConfig.deform_geometry existed moved geometry in both stages; their
+    config lacks the key and must load as that, not as today's default."""
+    cfg = small_cfg(iterations=10)
+    cfg.model.deform_geometry = ("rgb", "thermal")
+    a = Trainer(cfg, scene, log=lambda _: None)
+    for _ in range(3):
+        a.step()
+    a.save_checkpoint(tmp_path / "old.pt")
+    state = torch.load(tmp_path / "old.pt", weights_only=False)
+    del state["config"]["model"]["deform_geometry"]
+    torch.save(state, tmp_path / "old.pt")
+    b = Trainer.resume(tmp_path / "old.pt", scene, log=lambda _: None)
+    assert b.cfg.model.deform_geometry == ("rgb", "thermal")
+    from recon.render import render_frame
+    cam = scene.test["thermal"][0].camera
+    assert torch.equal(render_frame(a.model, "thermal", 0.5, cam), render_frame(b.model, "thermal", 0.5, cam))
+
+
 @pytest.mark.parametrize("method", ["ed3dgs-rgb", "ed3dgs-thermal", "static-rgbt", "dtg-shared", "dtg-embed"])
 def test_every_method_trains(scene, method):
     tr = Trainer(small_cfg(method, iterations=25), scene, log=lambda _: None)
