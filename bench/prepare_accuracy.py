@@ -6,7 +6,11 @@ rotation / position errors, the registered fraction, the metric-scale error, the
 (through the same alignment) and pycolmap's wall time (the SfM step re-run `--repeats` times on
 the same frames; median). Busy shared 2-core machine: the lead re-runs on a quiet one.
 
-    PYTHONPATH=. python bench/prepare_accuracy.py --out bench/results/prepare_accuracy.json
+The rig calibration is `--calibration FILE` (e.g. `rig calibrate` of a simulated calibration
+session: the whole chain) or, without it, the simulator's true calibration (prepare's documented
+fallback); the JSON records which, with the file's errors against the truth.
+
+    PYTHONPATH=. python bench/prepare_accuracy.py --calibration CAL.json --out bench/results/prepare_accuracy.json
 """
 from __future__ import annotations
 
@@ -25,7 +29,10 @@ from recon.prepare import REPORT_FILE, PrepareError, prepare_session
 from recon.prepare.poses import apply_similarity, pose_errors, rotation_angle_deg
 from recon.prepare.simtruth import session_truth
 from recon.sfm import SfmOptions, run_sfm
+from rig.calibrate import load_calibration
 from rig.session import open_session
+
+from bench.prepare_calibration import errors
 
 
 def capture(out: Path, duration: float, variant: str, keyframes: float, render_scale: float, seed: int) -> float:
@@ -72,9 +79,18 @@ def grade(session_dir: Path, data_dir: Path) -> dict:
         "scale_error_pct": round((sc - 1) * 100, 3),
         "thermal_rotation_deg": _stats(th_rot), "thermal_position_mm": _stats(th_pos, 1e3, 3),
         "rgb_fx": round(rgb[0].fx, 2), "rgb_fx_truth": round(rgb_truth_fx, 2),
+        "calibration": calibration_record(report["calibration"]),
         "sfm": report["sfm"], "scale": {k: v for k, v in report["scale"].items() if not k.startswith("grid")},
         "warnings": report["warnings"], "notes": report["notes"], "prepare_s": report["timings"].get("total_s"),
     }
+
+
+def calibration_record(used: dict) -> dict:
+    """The rig calibration prepare used (its report's `calibration`), with a file's errors against
+    the simulated rig (the simulator's truth has none)."""
+    if used.get("method") == "simulator":
+        return used
+    return {**used, "errors_vs_truth": errors(load_calibration(used["source"]))}
 
 
 def sfm_wall_times(work: Path, repeats: int) -> list[float]:
@@ -100,11 +116,14 @@ def main() -> int:
     p.add_argument("--render-scale", type=float, default=0.5)
     p.add_argument("--repeats", type=int, default=3, help="pycolmap timing repeats (first variant)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--calibration", type=Path,
+                   help="rig_calibration.json for prepare (default: the simulator's true calibration)")
     args = p.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     results = {"config": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
                "machine": "2 shared cores (other engineers' jobs running); lead re-runs on a quiet machine",
                "variants": {}}
+    cal_arg = f" --calibration {args.calibration}" if args.calibration else ""
     for i, variant in enumerate(args.variants.split(",")):
         session, data = args.work / f"s-{variant}", args.work / f"d-{variant}"
         shutil.rmtree(session, ignore_errors=True)
@@ -115,10 +134,10 @@ def main() -> int:
                  "commands": [f"python -m rig capture --duration {args.duration:g} --out SESSION --sim-variant {variant} "
                               f"--sim-keyframes {args.keyframes:g} --sim-render-scale {args.render_scale:g} "
                               f"--seed {args.seed}",
-                              f"python -m recon prepare SESSION DATA --frames {args.frames}"]}
+                              f"python -m recon prepare SESSION DATA --frames {args.frames}{cal_arg}"]}
         try:
             prepare_session(session, data, progress=lambda m: print(f"  {m}", flush=True), frames=args.frames,
-                            keep_work=True)
+                            calibration=args.calibration, keep_work=True)
             entry.update(grade(session, data))
             if i == 0 and args.repeats:
                 entry["pycolmap_s_repeats"] = sfm_wall_times(data / ".work", args.repeats)

@@ -31,6 +31,7 @@ from recon.publish import LivePublisher, TrainingFeed
 from recon.eval.evaluate import frame_metrics
 from recon.eval.renders import encode_render, write_render_pixels
 from recon.export import export_deformation, export_ply, model_bytes
+from recon.prepare import REPORT_FILE, PrepareError, PrepareOptions, prepare_session
 from recon.render import render_frame
 from recon.scene import Scene
 from recon.train import Trainer
@@ -170,11 +171,30 @@ def config_from_args(args, overrides: dict):
     return cfg
 
 
+def prepare_options(args) -> dict:
+    """The `recon prepare` options of a session run (prepare's defaults where not given)."""
+    given = {"calibration": args.calibration, "scale": args.scale, "frames": args.frames}
+    return {"downscale": args.downscale, **{k: v for k, v in given.items() if v is not None}}
+
+
+def prepare_refused(session: Path, data_dir: Path, exc: Exception) -> str:
+    """One paragraph for a session `recon prepare` would not turn into a dataset."""
+    return (f"recon run: nothing trained: {session} could not be prepared: {exc}. What was measured is in "
+            f"{data_dir / REPORT_FILE}")
+
+
 def run(args: argparse.Namespace) -> int:
     inp, out = Path(args.input), Path(args.out)
     kind = input_kind(inp)
-    if args.follow and (kind != "session" or args.resume):
-        raise SystemExit("--follow trains on a rig session while it is captured (and cannot --resume)")
+    if args.follow and (kind != "session" or args.resume or args.frames is not None):
+        raise SystemExit("--follow trains on a rig session while it is captured (and cannot --resume or "
+                         "take --frames: it picks its own)")
+    if kind == "session":
+        try:
+            PrepareOptions(**prepare_options(args))
+        except ValueError as exc:
+            print(f"recon run: {exc}", file=sys.stderr)
+            return 2
     out.mkdir(parents=True, exist_ok=True)
     overrides = {k: v for k, v in {"iterations": args.iterations, "minutes": args.minutes,
                                    "seed": args.seed, "threads": args.threads}.items() if v is not None}
@@ -196,14 +216,16 @@ def train_and_finish(args, inp: Path, out: Path, kind: str, overrides: dict, fee
         from recon.follow import FollowOptions, follow
         cfg = config_from_args(args, overrides)
         trainer, data_dir = follow(inp, out, cfg, FollowOptions(after_iterations=args.after), log,
-                                   prepare_options={"downscale": args.downscale}, on_step=feed.on_step)
+                                   prepare_options=prepare_options(args), on_step=feed.on_step)
     else:
         data_dir = inp
         if kind == "session":
-            from recon.prepare import prepare_session
             data_dir = out / "data"
             if not (data_dir / "transforms.json").exists():
-                prepare_session(inp, data_dir, downscale=args.downscale)
+                try:
+                    prepare_session(inp, data_dir, **prepare_options(args))
+                except PrepareError as exc:     # a refusal with advice, not a crash
+                    raise SystemExit(prepare_refused(inp, data_dir, exc)) from None
         scene = Scene(load_dataset(data_dir))
         trainer = make_trainer(args, scene, out, overrides)
         trainer.train(on_step=feed.on_step)
@@ -246,6 +268,10 @@ def register(sub) -> None:
     p.add_argument("--after", type=int, default=1500, help="with --follow: iterations after capture ends (default 1500)")
     p.add_argument("--downscale", type=int, default=4,
                    help="a session's images are prepared at 1/N size (default 4: 640x480 thermal -> 160x120)")
+    p.add_argument("--calibration", type=Path, help="a session's rig_calibration.json (see `recon prepare`)")
+    p.add_argument("--scale", type=float, help="a session's metres per SfM unit (see `recon prepare`)")
+    p.add_argument("--frames", type=int,
+                   help=f"a session's time steps (see `recon prepare`; default {PrepareOptions().frames})")
     p.add_argument("--seed", type=int)
     p.add_argument("--threads", type=int, help="CPU threads (default: all)")
     add_serve_arguments(p)

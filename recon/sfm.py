@@ -153,8 +153,9 @@ def diagnose(stats: dict, registered: int, total: int) -> str:
                 f"motion, a view dominated by moving objects, or repetitive texture). Recapture moving "
                 f"slower, with more of the static scene in view")
     return (f"only {registered}/{total} frames registered although matches were found ({measured}): the "
-            f"view may be dominated by moving objects, or the camera only rotated. Recapture moving "
-            f"sideways around a static scene")
+            f"unregistered frames may be dominated by moving objects, or the camera only rotated there. "
+            f"Recapture with most of the static scene in view while things move, moving sideways rather "
+            f"than turning on the spot")
 
 
 def _write_pairs(path: Path, names: list[str], pairs: list[tuple[int, int]]) -> None:

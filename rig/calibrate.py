@@ -2,10 +2,13 @@
 
 A checkerboard printed on a plate and warmed (a heat lamp, a hair dryer from behind) or cooled
 shows its squares in both cameras: the black squares absorb more and are warmer. Each view is
-detected in both images (OpenCV `findChessboardCornersSB`; thermal images are normalised and
-inverted so warm squares look dark), each camera is calibrated on its own (pinhole + k1 k2 p1 p2,
-the OPENCV model of the dataset format), then `stereoCalibrate` with both intrinsics fixed gives
-the extrinsic. Input is either
+detected in both images (OpenCV `findChessboardCorners` + `cornerSubPix` first, which stays
+unbiased on the heat-blurred thermal edges; `findChessboardCornersSB` as the fallback; thermal
+images are stretched and inverted so warm squares look dark). Each camera is calibrated on its
+own with the simplest distortion model (none, k1, k1 k2, k1 k2 p1 p2: the OPENCV model of the
+dataset format) whose RMS is within 3 % of the fullest, since free terms trade off with focal
+length on a narrow lens; then `stereoCalibrate` with both intrinsics fixed gives the extrinsic.
+Input is either
 
 - a session (`rig capture` while waving the board in front of the rig): thermal frames spread
   over the session, each with the RGB corners linearly interpolated between the two phone frames

@@ -2,9 +2,11 @@
 the RGB pose at the thermal frame's time composed with the rig extrinsic, and each way it can
 fail says what was measured and what to recapture."""
 import json
+import re
 import shutil
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -15,7 +17,7 @@ from recon.prepare.poses import interpolate_pose, pose_errors
 from recon.prepare.simtruth import session_truth
 from rig.calibrate import simulated_calibration
 from rig.capture import Capture, CaptureConfig
-from rig.session import open_session
+from rig.session import Session, open_session
 
 FAST = dict(frames=12, test_every=4, downscale=2)
 
@@ -117,16 +119,111 @@ def test_no_calibration_and_unknown_scale_refuse_with_advice(session, tmp_path, 
     assert not (tmp_path / "b" / "transforms.json").exists()
 
 
-def test_a_view_of_moving_things_only_refuses(tmp_path, session):
-    """The synthetic scene: warm blobs drifting over a smooth background, nothing static to match."""
+def test_a_textureless_view_refuses(tmp_path, session):
+    """The synthetic scene: warm blobs drifting over a smooth background, no SIFT features at all."""
     moving = _capture(tmp_path / "moving", sim_scene="synthetic")
     cal = simulated_calibration(open_session(session)).save(tmp_path / "rig_calibration.json")
     with pytest.raises(PrepareError) as exc:
         prepare_session(moving, tmp_path / "out", progress=None, calibration=cal, **FAST)
     msg = str(exc.value)
-    assert "too few matches" in msg and "Recapture" in msg
+    assert "too few matches" in msg and "textureless" in msg and "Recapture" in msg
     report = json.loads((tmp_path / "out" / REPORT_FILE).read_text())
     assert report["status"] == "failed" and report["sfm"]["features_median"] >= 0
+
+
+def _phone_sees(monkeypatch, change) -> None:
+    """Every phone frame a session decodes becomes change(image (H, W, 3) uint8, t = its video time
+    in s): what the phone would have recorded, fed to the real selection, SfM and checks."""
+    decode = Session.iter_rgb
+
+    def iter_rgb(self, start=0):
+        for frame in decode(self, start):
+            frame.image[:] = change(frame.image, frame.record["pts_s"])
+            yield frame
+
+    monkeypatch.setattr(Session, "iter_rgb", iter_rgb)
+
+
+def _board(h: int, w: int, seed: int = 0) -> np.ndarray:
+    """(h, w, 3) uint8 texture with blobs of 8 and 24 px: plenty of SIFT features."""
+    rng = np.random.default_rng(seed)
+    out = np.zeros((h, w, 3), np.float32)
+    for cell in (8, 24):
+        small = rng.uniform(0, 255, (h // cell + 2, w // cell + 2, 3)).astype(np.float32)
+        out += cv2.resize(small, None, fx=cell, fy=cell, interpolation=cv2.INTER_CUBIC)[:h, :w] / 2
+    return np.clip(out, 0, 255).astype(np.uint8)
+
+
+def _passing_object(start_s: float, end_s: float, fill: float = 0.9):
+    """A long textured object passing close to the camera between start_s and end_s: it covers the
+    lower `fill` of the view and slides 4 view widths a second, so frames 0.25 s apart share none
+    of its texture and only the top strip of the static scene."""
+    board = _board(480, 640 * 14)
+
+    def change(image: np.ndarray, t: float) -> np.ndarray:
+        if not start_s <= t <= end_s:
+            return image
+        h, w = image.shape[:2]
+        x = int(4 * 640 * t) % (board.shape[1] - 640)
+        out = image.copy()
+        top = round(h * (1 - fill))
+        out[top:] = cv2.resize(board[:, x:x + 640], (w, h))[top:]
+        return out
+    return change
+
+
+def _span(text: str) -> tuple[float, float]:
+    """'1.0-1.4' or '1.2' (recover.spans) -> (first, last) s."""
+    first, _, last = text.partition("-")
+    return float(first), float(last or first)
+
+
+def test_a_view_filled_by_a_moving_object_refuses_saying_so(session, tmp_path, monkeypatch):
+    _phone_sees(monkeypatch, _passing_object(1.0, 2.0))            # a third of the 3 s take
+    with pytest.raises(PrepareError) as exc:
+        prepare_session(session, tmp_path / "out", progress=None, **FAST)
+    msg = str(exc.value)
+    registered, dropped = re.search(r"registered (\d+)/12 frames .* unregistered at ([\d.-]+) s", msg).groups()
+    assert int(registered) < 0.8 * 12
+    t0, t1 = _span(dropped)
+    assert 0.9 <= t0 < t1 <= 2.1
+    assert "moving objects" in msg and "Recapture with most of the static scene in view" in msg
+    assert "dark" not in msg and "textureless" not in msg
+    report = json.loads((tmp_path / "out" / REPORT_FILE).read_text())
+    assert report["status"] == "failed" and report["sfm"]["features_median"] > 200   # texture was not the issue
+
+
+def test_a_short_moving_object_drops_its_frames_with_a_warning(session, tmp_path, monkeypatch):
+    """The "fewer frames" fallback: >= 80 % registered keeps the registered time steps only."""
+    _phone_sees(monkeypatch, _passing_object(1.0, 1.5))
+    prepare_session(session, tmp_path / "out", progress=None, **FAST)
+    report = json.loads((tmp_path / "out" / REPORT_FILE).read_text())
+    kept = report["frames"]["registered"]
+    assert 0.8 * 12 <= kept < 12 and report["status"] == "ok"
+    warning = next(w for w in report["warnings"] if "did not register" in w)
+    t0, t1 = _span(re.match(rf"{12 - kept} of 12 frames did not register \(at ([\d.-]+) s", warning).group(1))
+    assert 0.9 <= t0 <= t1 <= 1.6 and f"keeps the {kept} registered time steps" in warning
+    ds = load_dataset(tmp_path / "out")
+    times = [f.timestamp_s for f in ds.frames if f.modality == "rgb"]
+    assert len(times) == len(report["frame_list"]) == kept
+    assert len([f for f in ds.frames if f.modality == "thermal"]) == kept
+    assert not any(t0 <= t <= t1 for t in times)                  # the dropped times are gone
+
+
+def test_dark_frames_warn_and_failed_matching_blames_the_light(session, tmp_path, monkeypatch):
+    """The phone at 1 % light with sensor noise: the report warns (median grey level < 0.3) and the
+    refusal says to add light."""
+    rng = np.random.default_rng(0)
+    _phone_sees(monkeypatch, lambda image, t: np.clip(image * 0.01 + rng.normal(2, 2, image.shape), 0, 255
+                                                      ).astype(np.uint8))
+    with pytest.raises(PrepareError) as exc:
+        prepare_session(session, tmp_path / "out", progress=None, **FAST)
+    report = json.loads((tmp_path / "out" / REPORT_FILE).read_text())
+    grey = report["frames"]["median_brightness"]
+    assert grey < 0.03
+    assert any(w.startswith(f"low light: median grey level {grey:.2f} (< 0.3)") for w in report["warnings"])
+    assert f"The phone frames are dark (median grey level {grey:.2f})" in str(exc.value)
+    assert str(exc.value).endswith("recapture with more light") and "too few matches" in str(exc.value)
 
 
 def test_bad_arguments(tmp_path, session, capsys):

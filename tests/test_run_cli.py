@@ -1,15 +1,22 @@
-"""`recon run` / `recon render` end to end on a tiny simulated dataset."""
+"""`recon run` / `recon render` end to end on a tiny simulated dataset; `recon run SESSION` when
+`recon prepare` refuses the session."""
 import json
 import subprocess
 import sys
+from dataclasses import asdict
 
 import numpy as np
 import pytest
 from PIL import Image
 
+from recon.cli import main as recon_main
 from recon.data import load_dataset
 from recon.data.simulate import SimulateConfig, simulate_dataset
+from recon.prepare import REPORT_FILE
 from recon.splat.ply import read_gaussians_ply
+from rig.calibrate import Lens, RigCalibration
+from rig.capture import Capture, CaptureConfig
+from rig.sim.rig_config import RigConfig
 
 
 def recon(*args, check=True):
@@ -71,3 +78,47 @@ def test_clear_errors(tmp_path):
     assert res.returncode != 0 and "neither a prepared dataset (transforms.json) nor a rig session" in res.stderr
     res = recon("render", tmp_path, check=False)
     assert res.returncode != 0 and "missing" in res.stderr
+
+
+@pytest.fixture(scope="module")
+def textureless_session(tmp_path_factory):
+    """2 s of the simulated rig's `synthetic` scene: warm blobs on a smooth background, no SIFT
+    features, and no calibration in the session."""
+    path = tmp_path_factory.mktemp("session") / "s"
+    Capture(CaptureConfig(duration_s=2.0, out=path, progress=False, sim_scene="synthetic")).run()
+    return path
+
+
+def _calibration_file(path):
+    rc = RigConfig()
+    return RigCalibration(Lens(**asdict(rc.rgb)), Lens(**asdict(rc.thermal)), rc.thermal_from_rgb).save(path)
+
+
+def _refused(res, *phrases):
+    """One clean paragraph on stderr (no traceback) with `phrases` and where the report is."""
+    assert res.returncode == 1 and "Traceback" not in res.stderr
+    msg = [line for line in res.stderr.splitlines() if line.startswith("recon run:")]
+    assert len(msg) == 1 and "nothing trained" in msg[0] and REPORT_FILE in msg[0]
+    assert all(p in msg[0] for p in phrases), msg[0]
+
+
+def test_a_refused_session_is_a_message_not_a_traceback(textureless_session, tmp_path):
+    res = recon("run", textureless_session, "--out", tmp_path / "a", check=False)
+    _refused(res, "no rig calibration", "rig calibrate")
+    assert json.loads((tmp_path / "a" / "data" / REPORT_FILE).read_text())["status"] == "failed"
+
+    cal = _calibration_file(tmp_path / "rig.json")
+    res = recon("run", textureless_session, "--out", tmp_path / "b", "--calibration", cal, "--frames", 6,
+                "--scale", 0.1, "--downscale", 2, check=False)
+    _refused(res, "too few matches", "Recapture")
+    report = json.loads((tmp_path / "b" / "data" / REPORT_FILE).read_text())
+    assert report["calibration"]["source"] == str(cal)                    # the options reached prepare
+    assert {k: report["options"][k] for k in ("frames", "scale", "downscale")} == {"frames": 6, "scale": 0.1,
+                                                                                  "downscale": 2}
+    assert not (tmp_path / "b" / "metrics.json").exists()
+
+
+
+def test_bad_prepare_options_are_usage_errors(textureless_session, tmp_path, capsys):
+    assert recon_main(["run", str(textureless_session), "--out", str(tmp_path / "c"), "--scale", "-1"]) == 2
+    assert "scale must be positive" in capsys.readouterr().err and not (tmp_path / "c").exists()

@@ -9,7 +9,7 @@ import pytest
 from recon.data import load_dataset
 from recon.data.simulate import SimulateConfig, simulate_dataset
 from recon.prepare.poses import pose_errors
-from recon.sfm import SfmError, SfmOptions, run_sfm
+from recon.sfm import SfmError, SfmOptions, diagnose, run_sfm
 
 SACRE_COEUR = Path("/work/shared/data/sacre_coeur")
 
@@ -76,3 +76,14 @@ def test_dark_noisy_frames_fail_saying_so(tmp_path):
     with pytest.raises(SfmError) as err:
         run_sfm(tmp_path / "img", names, tmp_path / "sfm")
     assert "too dark" in str(err.value) and "more light" in str(err.value)
+
+
+def test_diagnosis_names_the_likely_cause():
+    """Numbers as measured on textureless, moving-object-filled and partly covered sessions
+    (tests/test_prepare_session.py)."""
+    assert "textureless" in diagnose({"features_median": 0, "verified_pairs": 0, "inliers_median": 0}, 0, 12)
+    none = diagnose({"features_median": 1940, "verified_pairs": 6, "inliers_median": 420}, 0, 12)
+    assert "a view dominated by moving objects" in none and "more of the static scene in view" in none
+    part = diagnose({"features_median": 590, "verified_pairs": 23, "inliers_median": 148}, 8, 12)
+    assert part.startswith("only 8/12 frames registered") and "dominated by moving objects" in part
+    assert "textureless" not in none + part and "dark" not in none + part

@@ -22,9 +22,11 @@ examples:
 Calibration: --calibration, else SESSION/rig_calibration.json, else the session folder's parent
 rig_calibration.json (`rig calibrate` writes it), else, for simulated sessions only, the
 simulator's true calibration. Metric scale: --scale, else the calibration checkerboard seen in
-the phone frames, else thermal multi-view consistency; when none is trustworthy the command
-refuses. Writes OUT/transforms.json, rgb/, thermal/, points3d.ply and prepare_report.json
-(also on failure: status, error and what was measured). Exit status 1 = refused, with advice.
+>= 3 registered phone frames, else, for simulated sessions only, the simulator's true camera
+path; when none applies the command refuses. Simulator fallbacks are noted in the report.
+Writes OUT/transforms.json, rgb/, thermal/, points3d.ply and prepare_report.json (also on
+failure: status, error and what was measured). Exit status 1 = refused, with advice; 2 = bad
+arguments.
 """
 
 
@@ -50,8 +52,8 @@ def register(sub) -> None:
                    help=f"time steps picked over the session, one RGB + one thermal frame each (default: {d.frames})")
     p.add_argument("--test-every", type=int, default=d.test_every,
                    help=f"hold out every n-th time step as test, 0 = none (default: {d.test_every})")
-    p.add_argument("--scale", type=float, help="metres per SfM unit (default: checkerboard in view, else "
-                                               "thermal multi-view consistency)")
+    p.add_argument("--scale", type=float, help="metres per SfM unit (default: the calibration checkerboard "
+                                               "in view, else the simulator's truth for simulated sessions)")
     p.add_argument("--downscale", type=int, default=d.downscale,
                    help=f"integer factor for the written images (default: {d.downscale})")
     p.add_argument("--matching", choices=("sequential", "exhaustive"), default=d.matching,
