@@ -38,6 +38,15 @@ from recon.train import Trainer
 from rig.session import open_session
 
 
+class FollowError(RuntimeError):
+    """The capture ended before any reconstruction could be made; `data_dir` holds the last
+    attempt's prepare report."""
+
+    def __init__(self, message: str, data_dir: Path | None):
+        super().__init__(message)
+        self.data_dir = data_dir
+
+
 @dataclass
 class FollowOptions:
     refresh_s: float = 15.0          # re-solve poses after this much new capture
@@ -126,13 +135,14 @@ class Reconstructor(threading.Thread):
         self.ready: queue.Queue = queue.Queue()
         self.stop_event = threading.Event()
         self.reference: tuple[np.ndarray, np.ndarray] | None = None
-        self.final = False
+        self.last_error: tuple[str, Path] | None = None     # why the newest attempt failed, and where
 
     def run(self) -> None:
         try:
             self._follow_session()
         except Exception as exc:     # a dead thread must not leave the trainer waiting forever
             self.log(f"live poses: stopped by an unexpected error: {exc!r}")
+            self.last_error = (f"unexpected error {exc!r}", None)
             self.ready.put((None, True, 0.0))
 
     def _follow_session(self) -> None:
@@ -167,6 +177,7 @@ class Reconstructor(threading.Thread):
                 version += 1
                 next_due = span + self.opts.refresh_s
             except (PrepareError, RuntimeError) as exc:
+                self.last_error = (str(exc), target)
                 if closed:
                     self.log(f"live poses: failed on the whole capture ({exc})")
                     self.ready.put((None, True, span))
@@ -204,7 +215,9 @@ def follow(session_dir: Path, run_dir: Path, cfg: TrainConfig, opts: FollowOptio
                 is_final = False
             else:
                 if path is None and trainer is None:
-                    raise RuntimeError(f"{session_dir}: the capture ended before poses could be recovered")
+                    why, where = recon_thread.last_error or ("no attempt finished", None)
+                    raise FollowError(f"{session_dir}: the capture ended before poses could be recovered "
+                                      f"(last attempt: {why})", where)
                 if path is not None:
                     horizon = horizon or 2.0 * max(span, 1.0)
                     while span > horizon * 1.001:

@@ -213,10 +213,14 @@ def run(args: argparse.Namespace) -> int:
 
 def train_and_finish(args, inp: Path, out: Path, kind: str, overrides: dict, feed, log) -> int:
     if args.follow:
-        from recon.follow import FollowOptions, follow
+        from recon.follow import FollowError, FollowOptions, follow
         cfg = config_from_args(args, overrides)
-        trainer, data_dir = follow(inp, out, cfg, FollowOptions(after_iterations=args.after), log,
-                                   prepare_options=prepare_options(args), on_step=feed.on_step)
+        try:
+            trainer, data_dir = follow(inp, out, cfg, FollowOptions(after_iterations=args.after), log,
+                                       prepare_options=prepare_options(args), on_step=feed.on_step)
+        except FollowError as exc:
+            report = f" What was measured is in {exc.data_dir / REPORT_FILE}" if exc.data_dir else ""
+            raise SystemExit(f"recon run: nothing trained: {exc}.{report}") from None
     else:
         data_dir = inp
         if kind == "session":

@@ -118,6 +118,10 @@ def test_a_refused_session_is_a_message_not_a_traceback(textureless_session, tmp
     assert not (tmp_path / "b" / "metrics.json").exists()
 
 
+def test_follow_on_a_session_that_never_prepares_is_a_message(textureless_session, tmp_path):
+    res = recon("run", textureless_session, "--follow", "--out", tmp_path / "f", check=False)
+    _refused(res, "capture ended before poses could be recovered", "no rig calibration")
+
 
 def test_bad_prepare_options_are_usage_errors(textureless_session, tmp_path, capsys):
     assert recon_main(["run", str(textureless_session), "--out", str(tmp_path / "c"), "--scale", "-1"]) == 2
