@@ -107,8 +107,9 @@ def _breakdown(w, reps, threads) -> dict:
     g = (a(w.means), a(w.quats), a(w.log_scales))
     vm = a(w.viewmats[0])
     stage = {}
-    m2, con, dep, rad = _native.project_forward(*g, a(w.opacities), vm, *cam, threads)
-    stage["projection"] = _timed(lambda _: _native.project_forward(*g, a(w.opacities), vm, *cam, threads), reps)
+    m2, con, dep, rad, _ = _native.project_forward(*g, a(w.opacities), vm, *cam, None, 0, threads)
+    stage["projection"] = _timed(lambda _: _native.project_forward(*g, a(w.opacities), vm, *cam, None, 0, threads),
+                                 reps)
     raster = lambda: _native.rasterize_forward(m2, con, a(w.colors), a(w.opacities), dep, rad,  # noqa: E731
                                                w.width, w.height, 1 << 28, threads)
     bins = [raster()[-1] for _ in range(reps)]
@@ -121,7 +122,7 @@ def _breakdown(w, reps, threads) -> dict:
     stage["composite_backward"] = _timed(lambda _: bwd(), reps)
     v = bwd()
     stage["projection_backward"] = _timed(
-        lambda _: _native.project_backward(*g, rad, vm, *cam, v[0], v[1], v[4], threads), reps)
+        lambda _: _native.project_backward(*g, rad, vm, *cam, v[0], v[1], v[4], None, None, None, 0, threads), reps)
     stage["tile_pairs"] = int(len(ids))
     stage["visible"] = int((rad > 0).sum())
     return {k: (round(x, 3) if isinstance(x, float) else x) for k, x in stage.items()}
@@ -172,24 +173,38 @@ def _projection_inputs(w, torch):
 def _bench_our_projection(w, reps, threads):
     import torch
 
-    from recon.splat._functions import EvalSH, Project
+    from recon.splat.rasterization import project
 
     params, views = _projection_inputs(w, torch)
-    means, quats, log_scales, opacities, sh = params
     cam = (w.fx, w.fy, w.cx, w.cy, w.width, w.height, 0.01)
 
-    def run(rep):
-        view = views[rep]
-        means2d, conics, depths, _ = Project.apply(means, quats, log_scales, opacities, view, cam, threads)
-        campos = -view[:3, :3].T @ view[:3, 3]
-        colors = EvalSH.apply(sh, means - campos, 3, threads)
+    def run(rep):  # what rasterization() runs before compositing: one fused native pass
+        means2d, conics, depths, _, colors = project(*params, views[rep], cam, 3, threads)
         return means2d.sum() + conics.sum() + depths.sum() + colors.sum()
 
     def forward(rep):
         with torch.no_grad():
             run(rep)
 
-    return _timed(forward, reps), _timed(lambda rep: run(rep).backward(), reps), {}
+    return (_timed(forward, reps), _timed(lambda rep: run(rep).backward(), reps),
+            {"breakdown_ms": _projection_breakdown(params, views[0], cam, reps, threads)})
+
+
+def _projection_breakdown(params, view, cam, reps, threads) -> dict:
+    """Median ms of the fused native projection + SH (degree 3) kernels on one view (the rest of
+    a :proj record is torch: autograd, the sums and accumulating .grad)."""
+    import numpy as np
+
+    from recon.splat import _native
+
+    means, quats, log_scales, opacities, sh = (t.detach().numpy() for t in params)
+    args = (means, quats, log_scales, opacities, view.numpy(), *cam)
+    fwd = lambda: _native.project_forward(*args, sh, 3, threads)  # noqa: E731
+    means2d, conics, depths, radii, colors = fwd()
+    ones = [np.ones_like(a) for a in (means2d, conics, depths, colors)]
+    bwd = lambda: _native.project_backward(means, quats, log_scales, radii, view.numpy(), *cam,  # noqa: E731
+                                           *ones[:3], sh, colors, ones[3], 3, threads)
+    return {"forward": round(_timed(lambda _: fwd(), reps), 3), "backward": round(_timed(lambda _: bwd(), reps), 3)}
 
 
 def _bench_gsplat_projection(w, reps, threads):
