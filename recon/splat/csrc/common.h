@@ -67,8 +67,8 @@ inline f8 ceil8(f8 x) {
 inline f8 min8(f8 a, f8 b) { return a < b ? a : b; }
 inline f8 max8(f8 a, f8 b) { return a > b ? a : b; }
 
-// 2^n e^r for x = n ln2 + r (nf = n as float, |r| <~ ln2): Cephes expf polynomial, ~1 ulp.
-inline f8 exp_reduced8(f8 x, f8 nf) {
+// 2^n e^r for x = n ln2 + r (n as int and as float, |r| <~ ln2): Cephes expf polynomial, ~1 ulp.
+inline f8 exp_reduced8(f8 x, i8 n, f8 nf) {
   const f8 r = x - nf * splat8(0.693359375f) + nf * splat8(2.12194440e-4f);
   f8 p = splat8(1.9875691500E-4f);
   p = p * r + splat8(1.3981999507E-3f);
@@ -77,7 +77,7 @@ inline f8 exp_reduced8(f8 x, f8 nf) {
   p = p * r + splat8(1.6666665459E-1f);
   p = p * r + splat8(5.0000001201E-1f);
   p = p * r * r + r + splat8(1.0f);
-  const i8 e = (__builtin_convertvector(nf, i8) + spliti8(127)) << 23;
+  const i8 e = (n + spliti8(127)) << 23;
   f8 scale;
   __builtin_memcpy(&scale, &e, sizeof(scale));
   return p * scale;
@@ -89,7 +89,7 @@ inline f8 exp8(f8 x) {
   x = x > splat8(0.0f) ? splat8(0.0f) : x;
   // trunc(fx - 0.5) for fx <= 0 is ceil(fx - 0.5) = round-half-down: fine for range reduction
   const i8 n = __builtin_convertvector(x * splat8(1.44269504088896341f) - splat8(0.5f), i8);
-  return exp_reduced8(x, __builtin_convertvector(n, f8));
+  return exp_reduced8(x, n, __builtin_convertvector(n, f8));
 }
 
 // exp(x) for any x, clamped to [-87, 88] (e.g. log-scales).
@@ -97,7 +97,8 @@ inline f8 expf8(f8 x) {
   x = min8(max8(x, splat8(-87.0f)), splat8(88.0f));
   // round to nearest: adding 1.5 * 2^23 leaves no fraction bits (IEEE semantics, no fast-math)
   const f8 big = splat8(12582912.0f);
-  return exp_reduced8(x, (x * splat8(1.44269504088896341f) + big) - big);
+  const f8 nf = (x * splat8(1.44269504088896341f) + big) - big;
+  return exp_reduced8(x, __builtin_convertvector(nf, i8), nf);
 }
 
 // ln(x) for finite x > 0 (Cephes logf polynomial, ~1 ulp).
