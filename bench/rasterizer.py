@@ -13,9 +13,17 @@ is built) is separable. Implementations:
                        skipped with a message when gsplat is not importable (--peers-dir helps)
   recon.splat:train    one whole static training step at each N: render (SH degree 3), L1 +
                        0.2 D-SSIM, backward, Adam (OpenSplat's CPU step takes ~510 ms at 50k)
+  recon.splat:raster   our rasterizer alone (binning, sort, composite; Rasterize autograd Function)
+                       on the projected visible Gaussians of each view, to compare with
+  opensplat-2dc4583:raster  OpenSplat's CPU rasterizer (rasterize_forward/backward_tensor_cpu,
+                       single-threaded by design) on the same projected inputs; built out of tree
+                       from DIR/OpenSplat (AGPL-3.0, never copied here) with --peers-dir DIR,
+                       compiled once into a cache under /tmp; skipped with a message without it
 Records: {"impl","n","width","height","threads","forward_ms","forward_backward_ms","peak_rss_mb"}
 plus "forward_min_ms", "forward_backward_min_ms" (fastest run), "scope", "scale_k", "reps", "load_avg_1min" (other load on the machine skews timings),
-"omp_wait_policy" and, for recon.splat, "breakdown_ms".
+"omp_wait_policy"; recon.splat and recon.splat:proj add "breakdown_ms" (native stages), the OpenSplat
+record "image_vs_ours_max_abs"/"_mean_abs" (its image vs ours on view 0: same inputs, its conventions)
+and "source".
 """
 from __future__ import annotations
 
@@ -25,16 +33,25 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-IMPLS = ["recon.splat", "dense-reference", "recon.splat:proj", "gsplat-1.5.3:proj", "recon.splat:train"]
-EPILOG = """examples:
+OPENSPLAT_COMMIT = "2dc4583e6f46317b8429ce7b9b792add38db8bcd"
+OPENSPLAT = f"opensplat-{OPENSPLAT_COMMIT[:7]}:raster"
+OPENSPLAT_CPU_DIR = Path("OpenSplat/rasterizer/gsplat-cpu")  # under --peers-dir
+IMPLS = ["recon.splat", "dense-reference", "recon.splat:proj", "gsplat-1.5.3:proj", "recon.splat:train",
+         "recon.splat:raster", OPENSPLAT]
+EPILOG = f"""examples:
   python bench/rasterizer.py --out bench/results/rasterizer.json
   python bench/rasterizer.py --out /tmp/r.json --sizes 50000 --impls recon.splat,recon.splat:train
-  python bench/rasterizer.py --out /tmp/r.json --peers-dir /tmp/peers   # gsplat installed with
-      pip install --target /tmp/peers gsplat==1.5.3 --no-deps && pip install --target /tmp/peers jaxtyping rich
+  python bench/rasterizer.py --out /tmp/r.json --peers-dir /tmp/peers
+peers in --peers-dir DIR (not part of this project):
+  gsplat:    pip install --target DIR gsplat==1.5.3 --no-deps && pip install --target DIR jaxtyping rich
+  OpenSplat: git clone https://github.com/pierotofy/OpenSplat DIR/OpenSplat &&
+             git -C DIR/OpenSplat checkout {OPENSPLAT_COMMIT}
+             (needs ninja: pip install ninja; built once into {tempfile.gettempdir()}/thermal4d-bench-opensplat)
 """
 
 
@@ -107,8 +124,9 @@ def _breakdown(w, reps, threads) -> dict:
     g = (a(w.means), a(w.quats), a(w.log_scales))
     vm = a(w.viewmats[0])
     stage = {}
-    m2, con, dep, rad = _native.project_forward(*g, a(w.opacities), vm, *cam, threads)
-    stage["projection"] = _timed(lambda _: _native.project_forward(*g, a(w.opacities), vm, *cam, threads), reps)
+    m2, con, dep, rad, _ = _native.project_forward(*g, a(w.opacities), vm, *cam, None, 0, threads)
+    stage["projection"] = _timed(lambda _: _native.project_forward(*g, a(w.opacities), vm, *cam, None, 0, threads),
+                                 reps)
     raster = lambda: _native.rasterize_forward(m2, con, a(w.colors), a(w.opacities), dep, rad,  # noqa: E731
                                                w.width, w.height, 1 << 28, threads)
     bins = [raster()[-1] for _ in range(reps)]
@@ -121,7 +139,7 @@ def _breakdown(w, reps, threads) -> dict:
     stage["composite_backward"] = _timed(lambda _: bwd(), reps)
     v = bwd()
     stage["projection_backward"] = _timed(
-        lambda _: _native.project_backward(*g, rad, vm, *cam, v[0], v[1], v[4], threads), reps)
+        lambda _: _native.project_backward(*g, rad, vm, *cam, v[0], v[1], v[4], None, None, None, 0, threads), reps)
     stage["tile_pairs"] = int(len(ids))
     stage["visible"] = int((rad > 0).sum())
     return {k: (round(x, 3) if isinstance(x, float) else x) for k, x in stage.items()}
@@ -172,24 +190,38 @@ def _projection_inputs(w, torch):
 def _bench_our_projection(w, reps, threads):
     import torch
 
-    from recon.splat._functions import EvalSH, Project
+    from recon.splat.rasterization import project
 
     params, views = _projection_inputs(w, torch)
-    means, quats, log_scales, opacities, sh = params
     cam = (w.fx, w.fy, w.cx, w.cy, w.width, w.height, 0.01)
 
-    def run(rep):
-        view = views[rep]
-        means2d, conics, depths, _ = Project.apply(means, quats, log_scales, opacities, view, cam, threads)
-        campos = -view[:3, :3].T @ view[:3, 3]
-        colors = EvalSH.apply(sh, means - campos, 3, threads)
+    def run(rep):  # what rasterization() runs before compositing: one fused native pass
+        means2d, conics, depths, _, colors = project(*params, views[rep], cam, 3, threads)
         return means2d.sum() + conics.sum() + depths.sum() + colors.sum()
 
     def forward(rep):
         with torch.no_grad():
             run(rep)
 
-    return _timed(forward, reps), _timed(lambda rep: run(rep).backward(), reps), {}
+    return (_timed(forward, reps), _timed(lambda rep: run(rep).backward(), reps),
+            {"breakdown_ms": _projection_breakdown(params, views[0], cam, reps, threads)})
+
+
+def _projection_breakdown(params, view, cam, reps, threads) -> dict:
+    """Median ms of the fused native projection + SH (degree 3) kernels on one view (the rest of
+    a :proj record is torch: autograd, the sums and accumulating .grad)."""
+    import numpy as np
+
+    from recon.splat import _native
+
+    means, quats, log_scales, opacities, sh = (t.detach().numpy() for t in params)
+    args = (means, quats, log_scales, opacities, view.numpy(), *cam)
+    fwd = lambda: _native.project_forward(*args, sh, 3, threads)  # noqa: E731
+    means2d, conics, depths, radii, colors = fwd()
+    ones = [np.ones_like(a) for a in (means2d, conics, depths, colors)]
+    bwd = lambda: _native.project_backward(means, quats, log_scales, radii, view.numpy(), *cam,  # noqa: E731
+                                           *ones[:3], sh, colors, ones[3], 3, threads)
+    return {"forward": round(_timed(lambda _: fwd(), reps), 3), "backward": round(_timed(lambda _: bwd(), reps), 3)}
 
 
 def _bench_gsplat_projection(w, reps, threads):
@@ -264,12 +296,146 @@ def _bench_train_step(w, reps, threads):
     return _timed(forward, reps), _timed(step, reps), {}
 
 
+def _raster_inputs(w, torch, threads) -> list[tuple]:
+    """Per view: our projection of its visible Gaussians -> (means2d (M,2), conics (M,3), colors (M,3),
+    opacities (M,), depths (M,)), the inputs both rasterizer-only records composite."""
+    from recon.splat.rasterization import project
+
+    cam = (w.fx, w.fy, w.cx, w.cy, w.width, w.height, 0.01)
+    views = []
+    with torch.no_grad():
+        for view in w.viewmats:
+            means2d, conics, depths, radii, colors = project(w.means, w.quats, w.log_scales, w.opacities, w.colors,
+                                                             view, cam, None, threads)
+            vis = radii > 0
+            views.append(tuple(t[vis].contiguous() for t in (means2d, conics, colors, w.opacities, depths)))
+    return views
+
+
+def _bench_our_raster(w, reps, threads):
+    import torch
+
+    from recon.splat._functions import Rasterize
+    from recon.splat.rasterization import MAX_TILE_PAIRS
+
+    views = _raster_inputs(w, torch, threads)
+
+    def raster(rep, grad: bool):
+        means2d, conics, colors, opacities, depths = (t.requires_grad_(grad) for t in views[rep % len(views)])
+        radii = torch.ones(len(depths), dtype=torch.int32)  # all visible (culled before)
+        return Rasterize.apply(means2d, conics, colors, opacities, depths, radii, w.width, w.height,
+                               MAX_TILE_PAIRS, threads)
+
+    def forward(rep):
+        with torch.no_grad():
+            raster(rep, False)
+
+    def forward_backward(rep):
+        image, alpha, _ = raster(rep, True)
+        (image.sum() + alpha.sum()).backward()
+
+    return _timed(forward, reps), _timed(forward_backward, reps), {}
+
+
+# Our glue, not OpenSplat code: exposes its CPU rasterizer to Python and owns the per-pixel
+# Gaussian lists (px2gid) its forward returns for its backward (freed as OpenSplat's training
+# step does after the backward).
+_OPENSPLAT_GLUE = r"""
+#include <torch/extension.h>
+#include "bindings.h"
+
+struct PixelLists {
+  std::vector<int32_t>* px2gid = nullptr;
+  PixelLists() = default;
+  PixelLists(const PixelLists&) = delete;
+  ~PixelLists() { delete[] px2gid; }
+};
+
+py::tuple forward(int width, int height, torch::Tensor xys, torch::Tensor conics, torch::Tensor colors,
+                  torch::Tensor opacities, torch::Tensor background, torch::Tensor cov2d, torch::Tensor depths) {
+  auto out = rasterize_forward_tensor_cpu(width, height, xys, conics, colors, opacities, background, cov2d, depths);
+  auto lists = std::make_shared<PixelLists>();
+  lists->px2gid = std::get<2>(out);
+  return py::make_tuple(std::get<0>(out), std::get<1>(out), lists);
+}
+
+py::tuple backward(int width, int height, torch::Tensor xys, torch::Tensor conics, torch::Tensor colors,
+                   torch::Tensor opacities, torch::Tensor background, torch::Tensor cov2d, torch::Tensor depths,
+                   torch::Tensor final_ts, std::shared_ptr<PixelLists> lists, torch::Tensor v_image,
+                   torch::Tensor v_alpha) {
+  auto g = rasterize_backward_tensor_cpu(height, width, xys, conics, colors, opacities, background, cov2d, depths,
+                                         final_ts, lists->px2gid, v_image, v_alpha);
+  return py::make_tuple(std::get<0>(g), std::get<1>(g), std::get<2>(g), std::get<3>(g));
+}
+
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  py::class_<PixelLists, std::shared_ptr<PixelLists>>(m, "PixelLists");
+  m.def("forward", &forward);
+  m.def("backward", &backward);
+}
+"""
+
+
+def _opensplat_extension(peers_dir: str):
+    """OpenSplat's gsplat_cpu.cpp + our glue, compiled once (ninja caches it) under /tmp."""
+    from torch.utils.cpp_extension import load
+
+    src = Path(peers_dir).resolve() / OPENSPLAT_CPU_DIR
+    build = Path(tempfile.gettempdir()) / "thermal4d-bench-opensplat"
+    build.mkdir(parents=True, exist_ok=True)
+    glue = build / "glue.cpp"
+    if not glue.exists() or glue.read_text() != _OPENSPLAT_GLUE:
+        glue.write_text(_OPENSPLAT_GLUE)
+    # -O3 as OpenSplat's CMake Release build; -march=native as ours
+    return load("opensplat_cpu_raster", [str(glue), str(src / "gsplat_cpu.cpp")], extra_include_paths=[str(src)],
+                extra_cflags=["-O3", "-march=native"], build_directory=str(build))
+
+
+def _bench_opensplat(w, reps, threads, peers_dir):
+    import torch
+
+    ext = _opensplat_extension(peers_dir)
+    background = torch.zeros(3)
+    views = _raster_inputs(w, torch, threads)
+    inputs = []
+    for means2d, conics, colors, opacities, depths in views:
+        a, b, c = conics.unbind(-1)
+        det = a * c - b * b  # OpenSplat also takes cov2d (its 3-sigma box) = conic^-1
+        cov2d = torch.stack([c / det, -b / det, -b / det, a / det], -1).reshape(-1, 2, 2)
+        # its pixel (j, i) is at (j, i), ours at (j + 0.5, i + 0.5): shift to render the same image
+        inputs.append((means2d - 0.5, conics, colors, opacities, background, cov2d, depths))
+    ones = (torch.ones(w.height, w.width, 3), torch.ones(w.height, w.width))
+
+    def forward(rep):
+        ext.forward(w.width, w.height, *inputs[rep % len(inputs)])  # its px2gid lists are freed on return
+
+    def forward_backward(rep):
+        args = inputs[rep % len(inputs)]
+        image, final_t, lists = ext.forward(w.width, w.height, *args)
+        ext.backward(w.width, w.height, *args, final_t, lists, *ones)
+
+    # same inputs, same image up to its conventions (alpha clamp 0.999, 3-sigma box, stop rule)
+    from recon.splat._functions import Rasterize
+    from recon.splat.rasterization import MAX_TILE_PAIRS
+
+    means2d, conics, colors, opacities, depths = views[0]
+    with torch.no_grad():
+        ours = Rasterize.apply(means2d, conics, colors, opacities, depths, torch.ones(len(depths), dtype=torch.int32),
+                               w.width, w.height, MAX_TILE_PAIRS, threads)[0]
+    diff = (ext.forward(w.width, w.height, *inputs[0])[0] - ours).abs()
+    extra = {"image_vs_ours_max_abs": round(float(diff.max()), 4), "image_vs_ours_mean_abs": round(float(diff.mean()), 6),
+             "source": f"{peers_dir}/{OPENSPLAT_CPU_DIR}/gsplat_cpu.cpp (pierotofy/OpenSplat {OPENSPLAT_COMMIT})"}
+    return _timed(forward, reps), _timed(forward_backward, reps), extra
+
+
 WORKERS = {
     "recon.splat": (_bench_ours, "render"),
     "dense-reference": (_bench_dense, "render"),
     "recon.splat:proj": (_bench_our_projection, "projection+sh (degree 3)"),
     "gsplat-1.5.3:proj": (_bench_gsplat_projection, "projection+sh (degree 3)"),
     "recon.splat:train": (_bench_train_step, "train step: render SH3 + L1 + 0.2 D-SSIM + backward + Adam"),
+    "recon.splat:raster": (_bench_our_raster, "rasterize only: projected visible Gaussians of each view"),
+    OPENSPLAT: (_bench_opensplat, "rasterize only: projected visible Gaussians of each view (single-threaded)"),
 }
 
 
@@ -286,7 +452,8 @@ def worker(args) -> None:
     fn, scope = WORKERS[args.worker]
     w = make_workload(args.n, args.scale_k)
     _reset_peak_rss()
-    forward_ms, forward_backward_ms, extra = fn(w, args.reps, args.threads)
+    peer = (args.peers_dir,) if args.worker == OPENSPLAT else ()
+    forward_ms, forward_backward_ms, extra = fn(w, args.reps, args.threads, *peer)
     min_forward, min_forward_backward = _MINIMA[0], _MINIMA[1]
     record = {"impl": args.worker, "n": args.n, "width": w.width, "height": w.height, "threads": args.threads,
               "forward_ms": round(forward_ms, 3), "forward_backward_ms": round(forward_backward_ms, 3),
@@ -302,6 +469,9 @@ def worker(args) -> None:
 
 def _available(impl: str, peers_dir: str | None) -> str | None:
     """None when impl can run, else why not."""
+    if impl == OPENSPLAT:
+        src = Path(peers_dir or ".") / OPENSPLAT_CPU_DIR / "gsplat_cpu.cpp"
+        return None if peers_dir and src.exists() else f"no {src}; see --help for the OpenSplat checkout"
     if impl != "gsplat-1.5.3:proj":
         return None
     code = "import sys; sys.path.insert(0, sys.argv[1]) if sys.argv[1] else None; import gsplat.cuda._torch_impl"
@@ -320,7 +490,7 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=2, help="threads for every implementation (default: %(default)s)")
     p.add_argument("--scale-k", type=float, default=3.0, help="Gaussian scale = K x mean 3-NN distance (default: %(default)s)")
     p.add_argument("--dense-max-n", type=int, default=2000, help="largest N for the dense reference (default: %(default)s)")
-    p.add_argument("--peers-dir", help="extra sys.path entry where peers (gsplat) are installed")
+    p.add_argument("--peers-dir", help="where peers are: gsplat (added to sys.path) and the OpenSplat checkout")
     p.add_argument("--omp-wait-policy", choices=["inherit", "passive", "active"], default="inherit",
                    help="OMP_WAIT_POLICY for the workers; libgomp reads it when torch loads it (default: %(default)s)")
     p.add_argument("--worker", choices=list(WORKERS), help=argparse.SUPPRESS)

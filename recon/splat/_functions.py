@@ -20,50 +20,39 @@ def _t(a: np.ndarray) -> torch.Tensor:
 
 
 class Project(torch.autograd.Function):
-    """(means, quats, log_scales, viewmat) -> means2d (N,2), conics (N,3), depths (N,), radii (N,).
+    """Projection and (optionally) SH colour in one native pass.
 
+    (means (N,3), quats (N,4), log_scales (N,3), opacities (N,), sh (N,K,C) or None, viewmat (4,4))
+    -> means2d (N,2), conics (N,3), depths (N,), radii (N,) int32, colors (N,C) = max(SH_degree(dir)
+    + 0.5, 0) for the direction camera -> mean, or None without sh.
     opacities only decide culling (non-differentiable here); radii are not differentiable.
     """
 
     @staticmethod
-    def forward(ctx, means, quats, log_scales, opacities, viewmat, intr: tuple, threads: int):
+    def forward(ctx, means, quats, log_scales, opacities, sh, viewmat, intr: tuple, degree: int, threads: int):
         """intr: (fx, fy, cx, cy, width, height, near_plane)."""
-        means2d, conics, depths, radii = _native.project_forward(
-            _np(means), _np(quats), _np(log_scales), _np(opacities), _np(viewmat), *intr, threads
+        sh_np = None if sh is None else _np(sh)
+        means2d, conics, depths, radii, colors = _native.project_forward(
+            _np(means), _np(quats), _np(log_scales), _np(opacities), _np(viewmat), *intr, sh_np, degree, threads
         )
         radii_t = _t(radii)
-        ctx.save_for_backward(means, quats, log_scales, viewmat, radii_t)
-        ctx.intr, ctx.threads = intr, threads
+        colors_t = None if colors is None else _t(colors)
+        ctx.save_for_backward(means, quats, log_scales, viewmat, radii_t, sh, colors_t)
+        ctx.intr, ctx.degree, ctx.threads = intr, degree, threads
         ctx.mark_non_differentiable(radii_t)
-        return _t(means2d), _t(conics), _t(depths), radii_t
+        return _t(means2d), _t(conics), _t(depths), radii_t, colors_t
 
     @staticmethod
-    def backward(ctx, v_means2d, v_conics, v_depths, _v_radii):
-        means, quats, log_scales, viewmat, radii = ctx.saved_tensors
-        v_means, v_quats, v_scales, v_view = _native.project_backward(
+    def backward(ctx, v_means2d, v_conics, v_depths, _v_radii, v_colors):
+        means, quats, log_scales, viewmat, radii, sh, colors = ctx.saved_tensors
+        has_sh = sh is not None
+        v_means, v_quats, v_scales, v_view, v_sh = _native.project_backward(
             _np(means), _np(quats), _np(log_scales), _np(radii), _np(viewmat), *ctx.intr,
-            _np(v_means2d), _np(v_conics), _np(v_depths), ctx.threads,
+            _np(v_means2d), _np(v_conics), _np(v_depths), _np(sh) if has_sh else None,
+            _np(colors) if has_sh else None, _np(v_colors) if has_sh else None, ctx.degree, ctx.threads,
         )
-        return _t(v_means), _t(v_quats), _t(v_scales), None, _t(v_view), None, None
-
-
-class EvalSH(torch.autograd.Function):
-    """(sh (N,K,C), dirs (N,3)) -> colours (N,C) = max(SH_degree(dirs/|dirs|) + 0.5, 0)."""
-
-    @staticmethod
-    def forward(ctx, sh, dirs, degree: int, threads: int):
-        colors = _t(_native.sh_forward(_np(sh), _np(dirs), degree, threads))
-        ctx.save_for_backward(sh, dirs, colors)
-        ctx.degree, ctx.threads = degree, threads
-        return colors
-
-    @staticmethod
-    def backward(ctx, v_colors):
-        sh, dirs, colors = ctx.saved_tensors
-        v_sh, v_dirs = _native.sh_backward(
-            _np(sh), _np(dirs), _np(colors), _np(v_colors), ctx.degree, ctx.threads
-        )
-        return _t(v_sh), _t(v_dirs), None, None
+        return (_t(v_means), _t(v_quats), _t(v_scales), None, _t(v_sh) if has_sh else None, _t(v_view),
+                None, None, None)
 
 
 class Rasterize(torch.autograd.Function):

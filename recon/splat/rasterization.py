@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import torch
 
-from recon.splat._functions import EvalSH, Project, Rasterize
+from recon.splat._functions import Project, Rasterize
 
 DEPTH_EPS = 1e-10
 MAX_TILE_PAIRS = 1 << 28  # 1 GiB of tile lists; beyond this a clear MemoryError
@@ -68,13 +68,13 @@ def _check_camera(fx, fy, cx, cy, width, height, near_plane) -> None:
             raise ValueError(f"{name} must be a positive int, got {v!r}")
 
 
-def _colors(features, sh_degree, means, viewmat, n: int, threads: int) -> torch.Tensor:
-    """features (N,C) as is, or SH (N,K,C) evaluated for the direction camera -> Gaussian."""
+def _check_features(features, sh_degree, n: int) -> None:
+    """features (N,C) used as colours, or SH coefficients (N,K>=(sh_degree+1)^2,C)."""
     if sh_degree is None:
         _check("features", features, (n, -1))
         if features.shape[1] < 1:
             raise ValueError(f"features must have at least 1 channel, got {_shape(features)}")
-        return features
+        return
     if not isinstance(sh_degree, int) or isinstance(sh_degree, bool) or not 0 <= sh_degree <= 3:
         raise ValueError(f"sh_degree must be None or an int in 0..3, got {sh_degree!r}")
     need = (sh_degree + 1) ** 2
@@ -85,9 +85,19 @@ def _colors(features, sh_degree, means, viewmat, n: int, threads: int) -> torch.
             f"features as SH of degree {sh_degree} must have shape (N,K>={need},C>=1), got "
             + (_shape(features) if isinstance(features, torch.Tensor) else type(features).__name__)
         )
-    rot, trans = viewmat[:3, :3], viewmat[:3, 3]
-    campos = -rot.T @ trans
-    return EvalSH.apply(features.contiguous(), means - campos, sh_degree, threads)
+
+
+def project(means, quats, log_scales, opacities, features, viewmat, intr: tuple, sh_degree, threads: int):
+    """Checked inputs -> means2d (N,2), conics (N,3), depths (N,), radii (N,), colors (N,C).
+
+    One native pass (Project): colors are features as is, or SH evaluated for the direction
+    camera -> Gaussian. intr: (fx, fy, cx, cy, width, height, near_plane).
+    """
+    sh = None if sh_degree is None else features.contiguous()
+    means2d, conics, depths, radii, colors = Project.apply(
+        means, quats, log_scales, opacities, sh, viewmat, intr, sh_degree or 0, threads
+    )
+    return means2d, conics, depths, radii, features if sh is None else colors
 
 
 def rasterization(
@@ -128,12 +138,13 @@ def rasterization(
     if threads < 1:
         raise ValueError(f"threads must be >= 1, got {threads}")
     viewmat = viewmat.float()
-    colors = _colors(features, sh_degree, means, viewmat, n, threads)
-    channels = colors.shape[1]
+    _check_features(features, sh_degree, n)
+    channels = features.shape[-1]
     if background is not None:
         _check("background", background, (channels,), (torch.float32, torch.float64))
     intr = (float(fx), float(fy), float(cx), float(cy), width, height, float(near_plane))
-    means2d, conics, depths, radii = Project.apply(means, quats, log_scales, opacities, viewmat, intr, threads)
+    means2d, conics, depths, radii, colors = project(means, quats, log_scales, opacities, features, viewmat, intr,
+                                                     sh_degree, threads)
     if means2d.requires_grad:
         means2d.retain_grad()
     image, alpha, depth_sum = Rasterize.apply(

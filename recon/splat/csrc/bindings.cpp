@@ -3,15 +3,16 @@
 #include <omp.h>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
 
 #include <initializer_list>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
 
 #include "projection.h"
 #include "rasterize.h"
-#include "sh.h"
 
 namespace py = pybind11;
 using namespace splat;
@@ -74,85 +75,75 @@ Camera make_camera(const Arr<float>& viewmat, float fx, float fy, float cx, floa
   return cam;
 }
 
+// sh (N,K,C) or None -> the ShInput the kernels take (checked against n and degree).
+ShInput sh_input(const std::optional<Arr<float>>& sh, int64_t n, int degree) {
+  ShInput in;
+  if (!sh) return in;
+  if (degree < 0 || degree > 3) throw py::value_error("native splat: sh degree must be 0..3");
+  check(*sh, "sh", {n, -1, -1});
+  if (sh->shape(1) < (degree + 1) * (degree + 1))
+    throw py::value_error("native splat: sh has too few coefficients for its degree");
+  in.sh = sh->data();
+  in.K = (int)sh->shape(1);
+  in.C = (int)sh->shape(2);
+  in.degree = degree;
+  return in;
+}
+
 py::tuple project_fwd(Arr<float> means, Arr<float> quats, Arr<float> log_scales,
                       Arr<float> opacities, Arr<float> viewmat, float fx, float fy, float cx,
-                      float cy, int width, int height, float near_plane, int threads) {
+                      float cy, int width, int height, float near_plane,
+                      std::optional<Arr<float>> sh, int degree, int threads) {
   const int64_t n = check_gaussians(means, quats, log_scales);
   check(opacities, "opacities", {n});
   const Camera cam = make_camera(viewmat, fx, fy, cx, cy, width, height, near_plane);
+  const ShInput shi = sh_input(sh, n, degree);
   auto means2d = empty<float>({n, 2});
   auto conics = empty<float>({n, 3});
   auto depths = empty<float>({n});
   auto radii = empty<int32_t>({n});
+  auto colors = empty<float>({n, shi.C});
   {
     py::gil_scoped_release nogil;
-    project_forward(n, means.data(), quats.data(), log_scales.data(), opacities.data(), cam,
+    project_forward(n, means.data(), quats.data(), log_scales.data(), opacities.data(), cam, shi,
                     means2d.mutable_data(), conics.mutable_data(), depths.mutable_data(),
-                    radii.mutable_data(), threads);
+                    radii.mutable_data(), colors.mutable_data(), threads);
   }
-  return py::make_tuple(means2d, conics, depths, radii);
+  return py::make_tuple(means2d, conics, depths, radii, sh ? py::object(colors) : py::none());
 }
 
 py::tuple project_bwd(Arr<float> means, Arr<float> quats, Arr<float> log_scales,
                       Arr<int32_t> radii, Arr<float> viewmat, float fx, float fy, float cx,
                       float cy, int width, int height, float near_plane, Arr<float> v_means2d,
-                      Arr<float> v_conics, Arr<float> v_depths, int threads) {
+                      Arr<float> v_conics, Arr<float> v_depths, std::optional<Arr<float>> sh,
+                      std::optional<Arr<float>> colors, std::optional<Arr<float>> v_colors,
+                      int degree, int threads) {
   const int64_t n = check_gaussians(means, quats, log_scales);
   check(radii, "radii", {n});
   check(v_means2d, "v_means2d", {n, 2});
   check(v_conics, "v_conics", {n, 3});
   check(v_depths, "v_depths", {n});
   const Camera cam = make_camera(viewmat, fx, fy, cx, cy, width, height, near_plane);
+  const ShInput shi = sh_input(sh, n, degree);
+  if (sh) {
+    if (!colors || !v_colors) throw py::value_error("native splat: sh needs colors and v_colors");
+    check(*colors, "colors", {n, shi.C});
+    check(*v_colors, "v_colors", {n, shi.C});
+  }
   auto v_means = empty<float>({n, 3});
   auto v_quats = empty<float>({n, 4});
   auto v_scales = empty<float>({n, 3});
   auto v_view = empty<float>({4, 4});
+  auto v_sh = empty<float>({sh ? n : 0, shi.K, shi.C});
   {
     py::gil_scoped_release nogil;
-    project_backward(n, means.data(), quats.data(), log_scales.data(), radii.data(), cam,
-                     v_means2d.data(), v_conics.data(), v_depths.data(), v_means.mutable_data(),
+    project_backward(n, means.data(), quats.data(), log_scales.data(), radii.data(), cam, shi,
+                     sh ? colors->data() : nullptr, v_means2d.data(), v_conics.data(),
+                     v_depths.data(), sh ? v_colors->data() : nullptr, v_means.mutable_data(),
                      v_quats.mutable_data(), v_scales.mutable_data(), v_view.mutable_data(),
-                     threads);
+                     v_sh.mutable_data(), threads);
   }
-  return py::make_tuple(v_means, v_quats, v_scales, v_view);
-}
-
-void check_sh(const Arr<float>& sh, const Arr<float>& dirs, int degree) {
-  if (degree < 0 || degree > 3) throw py::value_error("native splat: sh degree must be 0..3");
-  const int64_t n = sh.ndim() == 3 ? sh.shape(0) : -1;
-  check(sh, "sh", {n, -1, -1});
-  check(dirs, "dirs", {n, 3});
-  if (sh.shape(1) < (degree + 1) * (degree + 1))
-    throw py::value_error("native splat: sh has too few coefficients for its degree");
-}
-
-py::array sh_fwd(Arr<float> sh, Arr<float> dirs, int degree, int threads) {
-  check_sh(sh, dirs, degree);
-  const int64_t n = sh.shape(0);
-  const int K = (int)sh.shape(1), C = (int)sh.shape(2);
-  auto colors = empty<float>({n, C});
-  {
-    py::gil_scoped_release nogil;
-    sh_forward(n, K, C, degree, sh.data(), dirs.data(), colors.mutable_data(), threads);
-  }
-  return colors;
-}
-
-py::tuple sh_bwd(Arr<float> sh, Arr<float> dirs, Arr<float> colors, Arr<float> v_colors,
-                 int degree, int threads) {
-  check_sh(sh, dirs, degree);
-  const int64_t n = sh.shape(0);
-  const int K = (int)sh.shape(1), C = (int)sh.shape(2);
-  check(colors, "colors", {n, C});
-  check(v_colors, "v_colors", {n, C});
-  auto v_sh = empty<float>({n, K, C});
-  auto v_dirs = empty<float>({n, 3});
-  {
-    py::gil_scoped_release nogil;
-    sh_backward(n, K, C, degree, sh.data(), dirs.data(), colors.data(), v_colors.data(),
-                v_sh.mutable_data(), v_dirs.mutable_data(), threads);
-  }
-  return py::make_tuple(v_sh, v_dirs);
+  return py::make_tuple(v_means, v_quats, v_scales, v_view, sh ? py::object(v_sh) : py::none());
 }
 
 RasterScene make_scene(const Arr<float>& means2d, const Arr<float>& conics,
@@ -232,11 +223,9 @@ py::tuple raster_bwd(Arr<float> means2d, Arr<float> conics, Arr<float> colors,
 }  // namespace
 
 PYBIND11_MODULE(_native, m) {
-  m.doc() = "Native CPU kernels of recon.splat (projection, SH, tile rasterizer); use recon.splat.";
+  m.doc() = "Native CPU kernels of recon.splat (projection with SH colour, tile rasterizer); use recon.splat.";
   m.def("project_forward", &project_fwd);
   m.def("project_backward", &project_bwd);
-  m.def("sh_forward", &sh_fwd);
-  m.def("sh_backward", &sh_bwd);
   m.def("rasterize_forward", &raster_fwd);
   m.def("rasterize_backward", &raster_bwd);
   py::register_exception<std::length_error>(m, "TooManyIntersections", PyExc_MemoryError);

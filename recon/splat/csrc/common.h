@@ -46,16 +46,30 @@ inline int mask8(i8 m) {
 inline bool any8(i8 m) { return mask8(m) != 0; }
 inline int count8(i8 m) { return __builtin_popcount(mask8(m)); }
 
-// exp(x) for x <= 0 (Cephes polynomial, ~1 ulp); inputs below -87 return ~0.
-inline f8 exp8(f8 x) {
-  x = x < splat8(-87.0f) ? splat8(-87.0f) : x;
-  x = x > splat8(0.0f) ? splat8(0.0f) : x;
-  const f8 fx = x * splat8(1.44269504088896341f);
-  // round to nearest: floor(fx + 0.5) via truncation of a value shifted positive
-  i8 n = __builtin_convertvector(fx - splat8(0.5f), i8);  // trunc toward zero of negative = ceil
-  f8 nf = __builtin_convertvector(n, f8);
-  // trunc(fx - 0.5) for fx <= 0 is ceil(fx - 0.5) = round-half-down: fine for range reduction
-  f8 r = x - nf * splat8(0.693359375f) + nf * splat8(2.12194440e-4f);
+#ifdef __AVX__
+inline f8 sqrt8(f8 x) { return (f8)_mm256_sqrt_ps((__m256)x); }
+inline f8 floor8(f8 x) { return (f8)_mm256_floor_ps((__m256)x); }
+inline f8 ceil8(f8 x) { return (f8)_mm256_ceil_ps((__m256)x); }
+#else
+inline f8 sqrt8(f8 x) {
+  for (int i = 0; i < kLanes; ++i) x[i] = std::sqrt(x[i]);
+  return x;
+}
+inline f8 floor8(f8 x) {
+  for (int i = 0; i < kLanes; ++i) x[i] = std::floor(x[i]);
+  return x;
+}
+inline f8 ceil8(f8 x) {
+  for (int i = 0; i < kLanes; ++i) x[i] = std::ceil(x[i]);
+  return x;
+}
+#endif
+inline f8 min8(f8 a, f8 b) { return a < b ? a : b; }
+inline f8 max8(f8 a, f8 b) { return a > b ? a : b; }
+
+// 2^n e^r for x = n ln2 + r (n as int and as float, |r| <~ ln2): Cephes expf polynomial, ~1 ulp.
+inline f8 exp_reduced8(f8 x, i8 n, f8 nf) {
+  const f8 r = x - nf * splat8(0.693359375f) + nf * splat8(2.12194440e-4f);
   f8 p = splat8(1.9875691500E-4f);
   p = p * r + splat8(1.3981999507E-3f);
   p = p * r + splat8(8.3334519073E-3f);
@@ -63,10 +77,53 @@ inline f8 exp8(f8 x) {
   p = p * r + splat8(1.6666665459E-1f);
   p = p * r + splat8(5.0000001201E-1f);
   p = p * r * r + r + splat8(1.0f);
-  i8 e = (n + spliti8(127)) << 23;
+  const i8 e = (n + spliti8(127)) << 23;
   f8 scale;
   __builtin_memcpy(&scale, &e, sizeof(scale));
   return p * scale;
+}
+
+// exp(x) for x <= 0 (the compositing hot loop); inputs below -87 return ~0.
+inline f8 exp8(f8 x) {
+  x = x < splat8(-87.0f) ? splat8(-87.0f) : x;
+  x = x > splat8(0.0f) ? splat8(0.0f) : x;
+  // trunc(fx - 0.5) for fx <= 0 is ceil(fx - 0.5) = round-half-down: fine for range reduction
+  const i8 n = __builtin_convertvector(x * splat8(1.44269504088896341f) - splat8(0.5f), i8);
+  return exp_reduced8(x, n, __builtin_convertvector(n, f8));
+}
+
+// exp(x) for any x, clamped to [-87, 88] (e.g. log-scales).
+inline f8 expf8(f8 x) {
+  x = min8(max8(x, splat8(-87.0f)), splat8(88.0f));
+  // round to nearest: adding 1.5 * 2^23 leaves no fraction bits (IEEE semantics, no fast-math)
+  const f8 big = splat8(12582912.0f);
+  const f8 nf = (x * splat8(1.44269504088896341f) + big) - big;
+  return exp_reduced8(x, __builtin_convertvector(nf, i8), nf);
+}
+
+// ln(x) for finite x > 0 (Cephes logf polynomial, ~1 ulp).
+inline f8 log8(f8 x) {
+  i8 bits;
+  __builtin_memcpy(&bits, &x, sizeof(bits));
+  f8 e = __builtin_convertvector(((bits >> 23) & spliti8(255)) - spliti8(126), f8);
+  bits = (bits & spliti8(0x807fffff)) | spliti8(0x3f000000);  // mantissa in [0.5, 1)
+  f8 m;
+  __builtin_memcpy(&m, &bits, sizeof(m));
+  const i8 low = m < splat8(0.707106781186547524f);
+  e = select8(low, e - splat8(1.f), e);
+  m = select8(low, m + m, m) - splat8(1.f);
+  const f8 z = m * m;
+  f8 y = splat8(7.0376836292E-2f);
+  y = y * m + splat8(-1.1514610310E-1f);
+  y = y * m + splat8(1.1676998740E-1f);
+  y = y * m + splat8(-1.2420140846E-1f);
+  y = y * m + splat8(1.4249322787E-1f);
+  y = y * m + splat8(-1.6668057665E-1f);
+  y = y * m + splat8(2.0000714765E-1f);
+  y = y * m + splat8(-2.4999993993E-1f);
+  y = y * m + splat8(3.3333331174E-1f);
+  y = y * m * z + e * splat8(-2.12194440e-4f) - splat8(0.5f) * z;
+  return m + y + e * splat8(0.693359375f);
 }
 
 // Pixel bounding box [x0,x1]x[y0,y1] (inclusive, clipped to the image) of the region where a

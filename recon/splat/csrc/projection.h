@@ -1,4 +1,5 @@
-// EWA projection of 3D Gaussians to pixel-space 2D Gaussians (3DGS math) and its analytic VJP.
+// EWA projection of 3D Gaussians to pixel-space 2D Gaussians (3DGS math), fused with their
+// view-dependent SH colour, and the analytic VJP of both.
 #pragma once
 #include <cstdint>
 
@@ -11,17 +12,28 @@ struct Camera {
   float near_plane;
 };
 
+// Optional SH colour: sh (N,K,C) with K >= (degree+1)^2, evaluated for the direction camera ->
+// Gaussian mean; sh == nullptr skips it.
+struct ShInput {
+  const float* sh = nullptr;
+  int K = 0, C = 0, degree = 0;
+};
+
 // means (N,3), quats (N,4 wxyz, any norm), log_scales (N,3), opacities (N) ->
 // means2d (N,2), conics (N,3: a,b,c of the inverse 2D covariance [[a,b],[b,c]]),
-// depths (N, camera z), radii (N, 0 = culled).
+// depths (N, camera z), radii (N, 0 = culled), colors (N,C) when sh.sh is set (else unused).
 void project_forward(int64_t n, const float* means, const float* quats, const float* log_scales,
-                     const float* opacities, const Camera& cam, float* means2d, float* conics,
-                     float* depths, int32_t* radii, int threads);
+                     const float* opacities, const Camera& cam, const ShInput& sh,
+                     float* means2d, float* conics, float* depths, int32_t* radii,
+                     float* colors, int threads);
 
-// Gradients of means2d, conics, depths -> means, quats, log_scales, viewmat (4x4, may be null).
+// Gradients of means2d, conics, depths (and of colors (N,C) when sh.sh is set, given the
+// forward's colors) -> means, quats, log_scales, viewmat (4x4) and sh (N,K,C).
 void project_backward(int64_t n, const float* means, const float* quats, const float* log_scales,
-                      const int32_t* radii, const Camera& cam, const float* v_means2d,
-                      const float* v_conics, const float* v_depths, float* v_means,
-                      float* v_quats, float* v_log_scales, float* v_viewmat, int threads);
+                      const int32_t* radii, const Camera& cam, const ShInput& sh,
+                      const float* colors, const float* v_means2d, const float* v_conics,
+                      const float* v_depths, const float* v_colors, float* v_means,
+                      float* v_quats, float* v_log_scales, float* v_viewmat, float* v_sh,
+                      int threads);
 
 }  // namespace splat
