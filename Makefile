@@ -1,7 +1,7 @@
 # The two commands of the README, and the system packages CI installs.
 PY ?= python3
 
-.PHONY: setup demo test system-deps bench
+.PHONY: setup demo test system-deps bench-deps
 
 setup:            ## install thermal4d (builds the native rasterizer) and its test tools
 	$(PY) -m pip install -e '.[test]'
@@ -15,3 +15,6 @@ test:             ## the test suite (tiny scenes; benchmarks live in bench/)
 
 system-deps:      ## Debian packages for the real-peer tests (run as root); tests skip without them
 	apt-get update && apt-get install -y --no-install-recommends aravis-tools libusb-1.0-0 chromium  # chromium: the status-page browser test
+
+bench-deps:       ## what the benchmarks need beyond the tests (matplotlib for bench/table.py's chart)
+	$(PY) -m pip install -e '.[bench]'

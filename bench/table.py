@@ -151,6 +151,10 @@ def main() -> int:
     args = ap.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
+    try:                                # the chart comes last: fail now, not after hours of training
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise SystemExit("bench/table.py draws speed_vs_accuracy.png with matplotlib: pip install -e '.[bench]'")
     w, h = (int(v) for v in args.size.split("x"))
     scenes, methods = args.scenes.split(","), args.methods.split(",")
     log = lambda msg: print(msg, flush=True)  # noqa: E731
