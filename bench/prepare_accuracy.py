@@ -4,7 +4,8 @@ For each variant: `rig capture` a session of the simulated rig (sharp keyframes)
 it, then align the recovered RGB camera centres to the true ones by a similarity and report
 rotation / position errors, the registered fraction, the metric-scale error, thermal pose errors
 (through the same alignment) and pycolmap's wall time (the SfM step re-run `--repeats` times on
-the same frames; median). Busy shared 2-core machine: the lead re-runs on a quiet one.
+the same frames; median). The load average at the start and end is recorded: wall times are
+only comparable on a quiet machine.
 
 The rig calibration is `--calibration FILE` (e.g. `rig calibrate` of a simulated calibration
 session: the whole chain) or, without it, the simulator's true calibration (prepare's documented
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -121,7 +123,7 @@ def main() -> int:
     args = p.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     results = {"config": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
-               "machine": "2 shared cores (other engineers' jobs running); lead re-runs on a quiet machine",
+               "machine": {"cpus": os.cpu_count(), "load_avg_start": [round(x, 2) for x in os.getloadavg()]},
                "variants": {}}
     cal_arg = f" --calibration {args.calibration}" if args.calibration else ""
     for i, variant in enumerate(args.variants.split(",")):
@@ -149,6 +151,7 @@ def main() -> int:
                 r = json.loads(rep.read_text())
                 entry.update(sfm=r["sfm"], frames=r["frames"], warnings=r["warnings"])
         results["variants"][variant] = entry
+        results["machine"]["load_avg_now"] = [round(x, 2) for x in os.getloadavg()]
         print(json.dumps({k: v for k, v in entry.items() if k not in ("sfm", "commands")}, indent=1), flush=True)
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(results, indent=1) + "\n")
