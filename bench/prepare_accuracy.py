@@ -107,6 +107,11 @@ def sfm_wall_times(work: Path, repeats: int) -> list[float]:
     return out
 
 
+def load_avg() -> list[float]:
+    """The 1/5/15-minute load averages: other jobs on the 2 cores skew every wall time."""
+    return [round(x, 2) for x in os.getloadavg()]
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", type=Path, default=Path("bench/results/prepare_accuracy.json"))
@@ -123,7 +128,7 @@ def main() -> int:
     args = p.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     results = {"config": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
-               "machine": {"cpus": os.cpu_count(), "load_avg_start": [round(x, 2) for x in os.getloadavg()]},
+               "machine": {"cpus": os.cpu_count(), "load_avg_start": load_avg()},
                "variants": {}}
     cal_arg = f" --calibration {args.calibration}" if args.calibration else ""
     for i, variant in enumerate(args.variants.split(",")):
@@ -151,7 +156,7 @@ def main() -> int:
                 r = json.loads(rep.read_text())
                 entry.update(sfm=r["sfm"], frames=r["frames"], warnings=r["warnings"])
         results["variants"][variant] = entry
-        results["machine"]["load_avg_now"] = [round(x, 2) for x in os.getloadavg()]
+        results["machine"]["load_avg_now"] = load_avg()
         print(json.dumps({k: v for k, v in entry.items() if k not in ("sfm", "commands")}, indent=1), flush=True)
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(results, indent=1) + "\n")

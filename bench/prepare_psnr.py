@@ -36,7 +36,7 @@ from recon.prepare.poses import pose_errors
 from recon.prepare.simtruth import session_truth
 from rig.session import open_session
 
-from bench.prepare_accuracy import grade
+from bench.prepare_accuracy import grade, load_avg
 
 
 def truth_twin(session_dir: Path, data: Path, twin: Path) -> dict:
@@ -115,7 +115,7 @@ def main() -> int:
                             f"--downscale {args.downscale}{cal_arg}",
                             f"python -m recon run RECOVERED --out RUN_R --iterations {args.iterations} --seed S",
                             f"python -m recon run TRUTH --out RUN_T --iterations {args.iterations} --seed S"],
-               "machine": {"cpus": os.cpu_count(), "load_avg_start": [round(x, 2) for x in os.getloadavg()]}}
+               "machine": {"cpus": os.cpu_count(), "load_avg_start": load_avg()}}
     for seed in (int(s) for s in args.seeds.split(",")):
         row = {"seed": seed}
         for name, data in (("recovered", recovered), ("truth", twin)):
@@ -126,7 +126,7 @@ def main() -> int:
         row["rgb_psnr_gap_db"] = round(row["truth"]["metrics"]["rgb"]["psnr"]
                                        - row["recovered"]["metrics"]["rgb"]["psnr"], 3)
         results["runs"].append(row)
-        results["machine"]["load_avg_now"] = [round(x, 2) for x in os.getloadavg()]
+        results["machine"]["load_avg_now"] = load_avg()
         gaps = [r["thermal_psnr_gap_db"] for r in results["runs"]]
         results["thermal_psnr_gap_db_mean"] = float(np.mean(gaps))     # complete after every seed
         args.out.parent.mkdir(parents=True, exist_ok=True)
