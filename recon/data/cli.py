@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 from recon.data.simulate import SimulateConfig, simulate_dataset
-from rig.sim import VARIANTS
+from rig.sim import FAMILY_VARIANTS, VARIANTS
 
 EPILOG = """\
 examples:
@@ -38,8 +38,9 @@ def register(sub) -> None:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     d = SimulateConfig()
     p.add_argument("out", type=Path, metavar="OUT", help="new (or empty) output folder")
-    p.add_argument("--variant", choices=VARIANTS, default=d.variant,
-                   help=f"scene variant (default: {d.variant})")
+    p.add_argument("--variant", choices=VARIANTS + FAMILY_VARIANTS, default=d.variant,
+                   help=f"scene variant (default: {d.variant}); family-<case>: a new scene per --seed "
+                        f"(rig/sim/family.py)")
     p.add_argument("--frames", type=int, default=d.frames,
                    help=f"time steps over the 10 s script (default: {d.frames})")
     p.add_argument("--size", type=_size, default=(d.width, d.height), metavar="WxH",

@@ -31,6 +31,8 @@ class Instance:
     position: np.ndarray          # (3,) local origin in world
     albedo: Callable[[np.ndarray, np.ndarray], np.ndarray]
     temperature: Callable[[np.ndarray], np.ndarray]
+    label: int = 0                # object id in mask images; 0: scenery, not an object
+    emissive: bool = False        # albedo is radiance as seen (a sky), not lit by the lights
 
     @property
     def is_axis_aligned(self) -> bool:
@@ -126,6 +128,9 @@ def shade_rgb(hits: Hits, instances: list[Instance], lights: list[tuple[np.ndarr
     for k, inst in enumerate(instances):
         idx, p, n = surface_points(hits, inst, k)
         if not len(idx):
+            continue
+        if inst.emissive:
+            out[idx] = inst.albedo(p, n)
             continue
         n_world = n if inst.is_axis_aligned else n @ inst.rotation.T.astype(np.float32)
         irradiance = np.full(len(idx), ambient, np.float32)

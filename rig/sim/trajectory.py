@@ -32,6 +32,7 @@ class HandheldPath:
     shake_m: float              # amplitude of positional hand shake
     shake_freqs: np.ndarray     # (3, 3) Hz per axis and component
     shake_phases: np.ndarray    # (3, 3) radians
+    target: tuple[float, float, float] = tuple(TARGET)   # the point the rig keeps in view
 
     @classmethod
     def for_rig(cls, rig: int, seed: int, period_s: float, shake: float) -> "HandheldPath":
@@ -50,9 +51,10 @@ class HandheldPath:
         s = self.phase * np.sin(2 * np.pi * t / self.period_s)
         az = np.radians(self.azimuth_deg + self.sweep_deg * s)
         el = np.radians(self.elevation_deg + self.elevation_sweep_deg * np.sin(2 * np.pi * t / (0.7 * self.period_s)))
-        eye = TARGET + self.radius_m * np.array([np.cos(el) * np.sin(az), -np.cos(el) * np.cos(az),
+        target = np.asarray(self.target, float)
+        eye = target + self.radius_m * np.array([np.cos(el) * np.sin(az), -np.cos(el) * np.cos(az),
                                                  np.sin(el)])
         shake = self._shake(t)
         eye = eye + self.shake_m * shake
-        aim = TARGET + 2.0 * self.shake_m * np.roll(shake, 1)
+        aim = target + 2.0 * self.shake_m * np.roll(shake, 1)
         return look_at(eye, aim, roll_rad=np.radians(1.5) * shake[2] * self.shake_m / 0.003)

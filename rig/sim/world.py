@@ -13,6 +13,7 @@ import numpy as np
 from rig.sim import raycast, sensors
 from rig.sim.camera import box_downsample
 from rig.sim.rig_config import RigConfig
+from rig.sim.family import FAMILY_VARIANTS, FamilyScene, case_of
 from rig.sim.tabletop import DURATION_S, VARIANTS, AMBIENT_K, TableTopScene
 from rig.sim.trajectory import HandheldPath
 
@@ -32,17 +33,21 @@ class World:
     def __init__(self, variant: str, seed: int, rig_config: RigConfig | None = None,
                  scene=None):
         """`scene` (anything with `settings` and `instances(t)`, e.g. a calibration target)
-        replaces the table-top scene of `variant`."""
-        if variant not in VARIANTS:
-            raise ValueError(f"unknown variant {variant!r}; choose one of {', '.join(VARIANTS)}")
+        replaces the table-top scene of `variant`; a scene may bring its own `paths` (the two
+        rigs) and `duration_s`."""
+        if variant not in VARIANTS + FAMILY_VARIANTS:
+            raise ValueError(f"unknown variant {variant!r}; choose one of {', '.join(VARIANTS + FAMILY_VARIANTS)}")
         self.variant, self.seed = variant, int(seed)
-        self.scene = scene if scene is not None else TableTopScene.build(variant, self.seed)
+        if scene is None:
+            case = case_of(variant)
+            scene = FamilyScene.build(case, self.seed) if case else TableTopScene.build(variant, self.seed)
+        self.scene = scene
         self.settings = self.scene.settings
-        self.duration_s = DURATION_S
-        self.rig_config = rig_config or RigConfig()
-        period = DURATION_S / self.settings.camera_speed
-        self.paths = [HandheldPath.for_rig(r, self.seed, period, self.settings.shake)
-                      for r in range(2)]
+        self.duration_s = getattr(self.scene, "duration_s", DURATION_S)
+        self.rig_config = rig_config or getattr(self.scene, "rig_config", None) or RigConfig()
+        period = self.duration_s / self.settings.camera_speed
+        self.paths = getattr(self.scene, "paths", None) or [
+            HandheldPath.for_rig(r, self.seed, period, self.settings.shake) for r in range(2)]
         self._range_k: tuple[float, float] | None = None
 
     # ------------------------------------------------------------------------------- time
@@ -133,6 +138,8 @@ class World:
             rows = rng.integers(0, intr.height, per_view)
             cols = rng.integers(0, intr.width, per_view)
             z = depth[rows, cols]
+            near = z < getattr(self.scene, "max_point_depth_m", np.inf)   # no points on a sky
+            rows, cols, z = rows[near], cols[near], z[near]
             cam = np.stack([(cols + 0.5 - intr.cx) / intr.fx * z, (rows + 0.5 - intr.cy) / intr.fy * z,
                             z], axis=1)
             xyz.append(cam @ c2w[:3, :3].T + c2w[:3, 3] + rng.normal(0, noise_m, cam.shape))
