@@ -15,6 +15,9 @@ import dataclasses
 from dataclasses import dataclass, field
 
 MODALITIES = ("rgb", "thermal")
+# `recon run`'s wall-clock cap when no --iterations are given; training usually ends earlier, when
+# held-out error has converged (StopConfig).
+DEFAULT_MINUTES = 15.0
 # Routing roles, in the order of the routing logits.
 ROLES = ("shared", "rgb", "thermal")
 
@@ -53,6 +56,23 @@ class ModelConfig:
     # Thermal stage reuses the first stage's residuals detached: thermal loss reaches the shared
     # canonical geometry through F_th but does not reshape F_rgb (paper 3.3).
     thermal_grad_to_rgb_deformation: bool = False
+    # Per-Gaussian trajectories: a displacement knot per `trajectory_step` time steps, linearly
+    # interpolated, added to the position in every modality's render (both losses train it). A
+    # deformation network learns a motion through embeddings and time rows that every Gaussian
+    # shares; a knot learns from its own Gaussian's gradient, so a moving object is followed
+    # within a few hundred iterations. 0: off.
+    trajectory_step: int = 0
+    # A learned static/dynamic split: each Gaussian's geometry residuals (deformation and
+    # trajectory) are multiplied by a gate sigmoid(dynamic_logit), which PriorConfig.static prices,
+    # so the background cannot absorb motion. init_dynamic: the gates' starting logit.
+    dynamic_gate: bool = False
+    init_dynamic: float = -2.0
+    # A bias on the deformation's geometry outputs moves every Gaussian alike. Adam moves it by
+    # about the learning rate each step whatever its gradient, so on a room-scale scene of the
+    # family (bench/family) the whole model drifted by up to 0.8 m in 150 iterations and training
+    # never recovered (16 dB RGB); without it 22.5 dB at 600 iterations. Runs written before
+    # this setting existed had the bias (and load with it).
+    geometry_bias: bool = False
     init_opacity: float = 0.1
     init_embedding_std: float = 0.01    # breaks the symmetry E-D3DGS's zero init relies on time to break
 
@@ -105,6 +125,23 @@ class LossConfig:
 
 
 @dataclass
+class PriorConfig:
+    """Motion priors (recon/priors.py); a weight of 0 turns a term off."""
+    rigidity: float = 0.0            # local rigidity over canonical k-NN (Luiten et al.: 4)
+    isometry: float = 0.0            # neighbour distances kept (Luiten et al.: 2)
+    rotation: float = 0.0            # neighbours rotate alike (Luiten et al.: 4)
+    smoothness: float = 0.0          # squared acceleration of trajectories over one time step
+    sparsity: float = 0.0            # L1 on displacement: the background stays put
+    static: float = 0.0              # a price on each Gaussian's dynamic gate (ModelConfig.dynamic_gate)
+    anisotropy: float = 0.0          # a price on Gaussians longer than max_aspect x their width
+    max_aspect: float = 5.0
+    knn: int = 8
+    knn_falloff: float = 2000.0      # w = exp(-falloff d^2 / E^2), as the embedding smoothness
+    sample: int = 2048               # Gaussians scored per step (rigidity, isometry, sparsity)
+    smoothness_sample: int = 512     # of those, Gaussians whose geometry is evaluated at t +- dt
+
+
+@dataclass
 class LearningRates:
     # 3DGS/E-D3DGS values; ``*_scene`` ones are multiplied by the scene extent E.
     means_scene: tuple[float, float] = (1.6e-4, 1.6e-6)   # exponential decay over the run
@@ -113,6 +150,8 @@ class LearningRates:
     # 1.6e-3 gave 15.6, 17.1, 15.1 dB in the moving-object pixels of the test views.
     deformation_scene: tuple[float, float] = (8e-3, 8e-4)
     time_embedding: tuple[float, float] = (8e-3, 8e-4)
+    trajectory_scene: tuple[float, float] = (1.6e-3, 1.6e-5)   # per-Gaussian trajectory knots
+    dynamic: float = 0.05              # static/dynamic gate logits (as opacity logits)
     rgb_dc: float = 2.5e-3
     rgb_rest: float = 2.5e-3 / 20
     thermal: float = 5e-3
@@ -139,15 +178,45 @@ class DensifyConfig:
 
 
 @dataclass
+class StopConfig:
+    """When a run ends (recon/schedule.py). ``converge``: the scene chooses the length: the
+    schedule holds at ``hold_at`` while held-out PSNR (every 8th training time step, kept out of
+    training until then) still gains ``min_gain_db`` within ``patience`` evaluations, then runs
+    its remaining (1 - hold_at) * iterations. Off: exactly ``iterations`` (or ``minutes``)."""
+    converge: bool = False            # the library default; `recon run` turns it on
+    hold_at: float = 1 / 3            # routing specialises and densification winds down after it
+    patience: int = 4                 # evaluations (eval_every iterations apart)
+    min_gain_db: float = 0.1
+    validation_every: int = 8         # every 8th training time step is held out (offset 4)
+
+
+@dataclass
+class GuardConfig:
+    """Divergence detection and rollback (recon/guard.py)."""
+    enabled: bool = True
+    window: int = 200                 # iterations of a loss's reference median...
+    factor: float = 2.0               # ...which the median of the next `patience` iterations
+    patience: int = 20                # may not exceed by this factor
+    holdout_drop_db: float = 5.0      # held-out PSNR this far below its best is a collapse
+    snapshot_every: int = 250         # the last good state is kept (in memory) this often
+    lr_factor: float = 0.5            # every learning rate after a rollback
+    max_rollbacks: int = 3            # then the run stops with an error
+
+
+@dataclass
 class TrainConfig:
     method: str = "dtg"
     model: ModelConfig = field(default_factory=ModelConfig)
     routing: RoutingConfig = field(default_factory=RoutingConfig)
     loss: LossConfig = field(default_factory=LossConfig)
+    priors: PriorConfig = field(default_factory=PriorConfig)
     lr: LearningRates = field(default_factory=LearningRates)
     densify: DensifyConfig = field(default_factory=DensifyConfig)
-    iterations: int = 3000
-    minutes: float | None = None      # wall-clock budget; progress = elapsed / budget
+    stop: StopConfig = field(default_factory=StopConfig)
+    guard: GuardConfig = field(default_factory=GuardConfig)
+    iterations: int = 3000            # the schedule's nominal length
+    minutes: float | None = None      # wall-clock budget (progress = elapsed / budget), or with
+                                      # stop.converge the cap
     sh_increase_every: float = 0.1    # raise the active RGB SH degree every 10 % of the run
     seed: int = 0
     checkpoint_every: int = 500
@@ -184,17 +253,19 @@ def config_to_dict(cfg: TrainConfig) -> dict:
 
 
 # Defaults that changed since runs were first written: a config without the key meant this.
-_PAST_DEFAULTS = {"model": {"deform_geometry": ("rgb", "thermal")}}
+_PAST_DEFAULTS = {"model": {"deform_geometry": ("rgb", "thermal"), "geometry_bias": True},
+                  "priors": dict.fromkeys(("rigidity", "isometry", "rotation", "smoothness", "sparsity",
+                                           "static", "anisotropy"), 0.0)}
 
 
 def config_from_dict(d: dict) -> TrainConfig:
     d = dict(d)
     for key, past in _PAST_DEFAULTS.items():
-        d[key] = {**past, **d[key]}
-    sub = {"model": ModelConfig, "routing": RoutingConfig, "loss": LossConfig,
-           "lr": LearningRates, "densify": DensifyConfig}
+        d[key] = {**past, **d.get(key, {})}
+    sub = {"model": ModelConfig, "routing": RoutingConfig, "loss": LossConfig, "priors": PriorConfig,
+           "lr": LearningRates, "densify": DensifyConfig, "stop": StopConfig, "guard": GuardConfig}
     for key, cls in sub.items():
         fields = {f.name for f in dataclasses.fields(cls)}
-        vals = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d[key].items() if k in fields}
+        vals = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.get(key, {}).items() if k in fields}
         d[key] = cls(**vals)
     return TrainConfig(**d)

@@ -16,7 +16,8 @@ from torch import nn
 
 
 class DeformationNet(nn.Module):
-    def __init__(self, time_dim: int, embedding_dim: int, width: int, outputs: dict[str, int]):
+    def __init__(self, time_dim: int, embedding_dim: int, width: int, outputs: dict[str, int],
+                 geometry_bias: bool = False):
         super().__init__()
         self.outputs = dict(outputs)
         self.time_in = nn.Linear(time_dim, width)
@@ -25,16 +26,27 @@ class DeformationNet(nn.Module):
         self.out = nn.Linear(width, sum(self.outputs.values()))
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
+        # No bias on geometry residuals: a bias moves every Gaussian alike (a global shift no
+        # static background wants), and Adam moves it by ~lr per step whatever its gradient.
+        sizes = list(self.outputs.values())
+        mask = torch.cat([torch.full((n,), float(geometry_bias or name not in GEOMETRY_OUTPUTS))
+                          for name, n in self.outputs.items()])
+        self.register_buffer("bias_mask", mask, persistent=False)
+        self._sizes = sizes
 
     def forward(self, e_t: torch.Tensor, embeddings: torch.Tensor) -> dict[str, torch.Tensor]:
         """e_t: (D_t,); embeddings: (N, D_e) -> {name: (N, size)}"""
         h = torch.relu(self.embedding_in(embeddings) + self.time_in(e_t))
         h = torch.relu(self.hidden(h))
-        return dict(zip(self.outputs, torch.split(self.out(h), list(self.outputs.values()), dim=1)))
+        out = nn.functional.linear(h, self.out.weight, self.out.bias * self.bias_mask)
+        return dict(zip(self.outputs, torch.split(out, self._sizes, dim=1)))
+
+
+GEOMETRY_OUTPUTS = {"means": 3, "quats": 4, "log_scales": 3}
 
 
 def geometry_outputs() -> dict[str, int]:
-    return {"means": 3, "quats": 4, "log_scales": 3}
+    return dict(GEOMETRY_OUTPUTS)
 
 
 def modality_outputs(modality: str, feature_size: int, opacity: bool, features: bool) -> dict[str, int]:

@@ -5,7 +5,9 @@ SH features: the DC ``features_m`` (N, 1, C_m) and, above degree 0, ``features_m
 (N, K_m - 1, C_m), kept apart because they learn at different rates (3DGS) (RGB: C=3; thermal:
 C=1, normalised temperature),
 an opacity logit ``opacity_m`` (N,), and the deformation embedding(s); routing logits
-``route_logits`` (N, 3) when routing is on.
+``route_logits`` (N, 3) when routing is on; per-Gaussian trajectory knots ``trajectory``
+(N, K, 3) when ``trajectory_step`` is set; the static/dynamic gate logit ``dynamic_logit`` (N,)
+with ``dynamic_gate``.
 
 Everything that has one row per Gaussian lives in this dict, so densification and pruning
 (recon.strategy) handle a new attribute without any change.
@@ -41,6 +43,16 @@ def knn_mean_sq_dist(points: torch.Tensor, k: int = 3, chunk: int = 2048) -> tor
     return torch.cat(out)
 
 
+def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
+    """(N, 4) wxyz quaternions of any non-zero norm -> (N, 3, 3) rotation matrices."""
+    q = q / q.norm(dim=1, keepdim=True).clamp_min(1e-12)
+    w, x, y, z = q.unbind(1)
+    return torch.stack([
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], 1).view(-1, 3, 3)
+
+
 def embedding_keys(cfg: ModelConfig) -> list[str]:
     if cfg.deformation == "shared":
         return ["embedding"]
@@ -49,8 +61,25 @@ def embedding_keys(cfg: ModelConfig) -> list[str]:
     return []
 
 
+def trajectory_knots(cfg: ModelConfig, n_times: int) -> int:
+    """Knots of the per-Gaussian trajectories over [0, 1] (0: none): one per trajectory_step time
+    steps, at least 2."""
+    if not cfg.trajectory_step or cfg.deformation == "none":
+        return 0
+    return max(2, -(-(n_times - 1) // cfg.trajectory_step) + 1)
+
+
+def extend_knots(knots: torch.Tensor, factor: int, zero: bool = False) -> torch.Tensor:
+    """Knots for a `factor` times longer span at the same spacing: old knots kept, new ones copy
+    the last (or are zero, for optimizer moments). (N, K, C) -> (N, f(K-1)+1, C)"""
+    extra = (factor - 1) * (knots.shape[1] - 1)
+    tail = knots.new_zeros(knots.shape[0], extra, knots.shape[2]) if zero else knots[:, -1:].expand(-1, extra, -1)
+    return torch.cat([knots, tail], dim=1)
+
+
 def init_gaussians(points: torch.Tensor, colors: torch.Tensor, temperatures: torch.Tensor | None,
-                   cfg: ModelConfig, routing: RoutingConfig, generator: torch.Generator) -> dict[str, torch.Tensor]:
+                   cfg: ModelConfig, routing: RoutingConfig, generator: torch.Generator,
+                   knots: int = 0) -> dict[str, torch.Tensor]:
     """Gaussians at initial points, 3DGS style.
 
     points: (M, 3); colors: (M, 3) in [0, 1]; temperatures: (M,) normalised temperature or None.
@@ -77,4 +106,8 @@ def init_gaussians(points: torch.Tensor, colors: torch.Tensor, temperatures: tor
         params[key] = torch.randn(m, cfg.gaussian_embedding_dim, generator=generator) * cfg.init_embedding_std
     if cfg.routing:
         params["route_logits"] = torch.log(torch.tensor(routing.prior_before)).repeat(m, 1)
+    if knots:
+        params["trajectory"] = torch.zeros(m, knots, 3)
+    if cfg.dynamic_gate and cfg.deformation != "none":
+        params["dynamic_logit"] = torch.full((m,), cfg.init_dynamic)
     return params

@@ -19,7 +19,7 @@ from torch import nn
 from recon.config import ModelConfig
 from recon.deformation import DeformationNet, geometry_outputs, modality_outputs
 from recon.gaussians import embedding_keys, sh_coeffs
-from recon.time_embedding import TimeEmbedding
+from recon.time_embedding import TimeEmbedding, lerp_rows
 
 GEOMETRY = ("means", "quats", "log_scales")
 
@@ -59,7 +59,7 @@ class DTGModel(nn.Module):
                     k, c = feature_shape(cfg, m)
                     outs.update(modality_outputs(m, k * c, m in cfg.deform_opacity, m in cfg.deform_features))
                 self.deformers[stage] = DeformationNet(cfg.time_embedding_dim, cfg.gaussian_embedding_dim,
-                                                       cfg.mlp_width, outs)
+                                                       cfg.mlp_width, outs, cfg.geometry_bias)
 
     @property
     def num_gaussians(self) -> int:
@@ -70,6 +70,37 @@ class DTGModel(nn.Module):
         key = "embedding" if stage == "shared" else f"embedding_{stage}"
         e_t = self.time_embedding(t, progress)
         return self.deformers[stage](e_t, self.gaussians[key])
+
+    def motion_stage(self) -> str | None:
+        """The deformation stage whose geometry every modality's render builds on ('shared',
+        'rgb' or 'thermal'), or None for a static model: where the motion priors apply."""
+        cfg = self.cfg
+        if cfg.deformation == "none":
+            return None
+        if cfg.deformation == "shared":
+            return "shared"
+        return next((m for m in cfg.modalities if m in cfg.deform_geometry), None)
+
+    def stage_of(self, modality: str) -> str | None:
+        """The deformation stage that renders a modality."""
+        if self.cfg.deformation == "none":
+            return None
+        return "shared" if self.cfg.deformation == "shared" else modality
+
+    def means_at(self, stage: str, t: float, progress: float, index: torch.Tensor) -> torch.Tensor:
+        """Positions (S, 3) at time t of the Gaussians `index` (S,) after one stage's residuals."""
+        key = "embedding" if stage == "shared" else f"embedding_{stage}"
+        res = self.deformers[stage](self.time_embedding(t, progress), self.gaussians[key][index])
+        moved = res["means"]
+        if "trajectory" in self.gaussians:
+            moved = moved + lerp_rows(self.gaussians["trajectory"][index], t, dim=1)
+        return self.gaussians["means"][index] + moved * self.dynamic_gate(index)[:, None]
+
+    def dynamic_gate(self, index: torch.Tensor | slice = slice(None)) -> torch.Tensor:
+        """(N,) or (S,) how much each Gaussian may move (1 without a static/dynamic split)."""
+        if "dynamic_logit" not in self.gaussians:
+            return self.gaussians["means"].new_ones(())
+        return torch.sigmoid(self.gaussians["dynamic_logit"][index])
 
     def render_inputs(self, modality: str, t: float, progress: float = 1.0,
                       mask: torch.Tensor | None = None,
@@ -100,6 +131,11 @@ class DTGModel(nn.Module):
                 if not cfg.thermal_grad_to_rgb_deformation:
                     first = {k: v.detach() for k, v in first.items()}
                 applied = {k: first[k] + res[k] for k in GEOMETRY}
+            if "trajectory" in g:       # shared by every modality, trained by every loss
+                applied = {**applied, "means": applied["means"] + lerp_rows(g["trajectory"], t, dim=1)}
+            if "dynamic_logit" in g:
+                gate = self.dynamic_gate()[:, None]
+                applied = {k: v * gate for k, v in applied.items()}
             geo = {k: geo[k] + applied[k] for k in GEOMETRY}
             if f"opacity_{modality}" in res:
                 opacity_logit = opacity_logit + res[f"opacity_{modality}"][:, 0]
@@ -130,6 +166,8 @@ def check_params(cfg: ModelConfig, params: dict[str, torch.Tensor]) -> None:
     """Every expected per-Gaussian tensor is present with one row per Gaussian."""
     expected = list(GEOMETRY) + [f"{p}_{m}" for m in cfg.modalities for p in ("features", "opacity")]
     expected += embedding_keys(cfg) + (["route_logits"] if cfg.routing else [])
+    expected += ["trajectory"] if cfg.trajectory_step and cfg.deformation != "none" else []
+    expected += ["dynamic_logit"] if cfg.dynamic_gate and cfg.deformation != "none" else []
     n = params["means"].shape[0]
     for key in expected:
         if key not in params:

@@ -5,6 +5,7 @@ RUN/ after a run:
   scene.json               temperature scaling and a default camera for `recon render`
   checkpoints/latest.pt    resumable state (every 500 iterations and at the end, written atomically)
   history.json             held-out PSNR, losses, Gaussians per role against iteration and seconds
+  events.json              why training stopped, and every divergence it recovered from (or not)
   renders/<file_path>      every test frame, same relative path and encoding as the ground truth
   eval/metrics.{json,md}   `recon eval` of those renders
   metrics.json             summary: per-modality means, Gaussians per role, model bytes, train time
@@ -24,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from recon.config import METHODS, config_to_dict, make_config
+from recon.config import DEFAULT_MINUTES, METHODS, config_to_dict, make_config
 from recon.data import load_dataset
 from recon.eval import evaluate_run, write_results
 from recon.publish import LivePublisher, TrainingFeed
@@ -34,6 +35,7 @@ from recon.export import export_deformation, export_ply, model_bytes
 from recon.prepare import REPORT_FILE, PrepareError, PrepareOptions, prepare_session
 from recon.render import render_frame
 from recon.scene import Scene
+from recon.guard import TrainingDiverged
 from recon.train import Trainer
 from recon import viz
 from server.cli_options import add_serve_arguments, serve_from_args
@@ -127,10 +129,17 @@ def finish(trainer: Trainer, run_dir: Path, dataset_dir: Path) -> dict:
         "train_seconds": round(trainer.elapsed, 2), "gaussians": trainer.model.num_gaussians,
         "gaussians_per_role": trainer.counts(), "model_bytes": model_bytes(trainer.model),
         "metrics": report.get("mean", report), "finish_seconds": round(time.perf_counter() - t0, 2),
+        "stop_reason": trainer.stop_reason(), "events": trainer.events,
     }
     (run_dir / "metrics.json").write_text(json.dumps(summary, indent=2))
-    (run_dir / "history.json").write_text(json.dumps(trainer.history, indent=1))
+    write_history(trainer, run_dir)
     return summary
+
+
+def write_history(trainer: Trainer, run_dir: Path) -> None:
+    (run_dir / "history.json").write_text(json.dumps(trainer.history, indent=1))
+    (run_dir / "events.json").write_text(json.dumps({"stop_reason": trainer.stop_reason(),
+                                                     "events": trainer.events}, indent=1))
 
 
 def scene_facts(scene: Scene, data_dir: Path) -> dict:
@@ -163,8 +172,14 @@ def make_trainer(args, scene: Scene, out: Path, overrides: dict) -> Trainer:
     return Trainer(config_from_args(args, overrides), scene, out)
 
 
-def config_from_args(args, overrides: dict):
+def config_from_args(args, overrides: dict, live: bool = False):
+    """The run's TrainConfig. Without --iterations the scene chooses the length (the schedule
+    holds while held-out error still improves) within a --minutes cap (default 15); --fixed
+    makes --minutes an exact budget; --iterations N trains exactly N iterations."""
     cfg = make_config(args.method, **overrides)
+    if not live and args.iterations is None:
+        cfg.stop.converge = not args.fixed
+        cfg.minutes = cfg.minutes or DEFAULT_MINUTES
     if args.max_gaussians:
         cfg.densify.max_gaussians = args.max_gaussians
     cfg.densify.auto_stop = args.auto_budget
@@ -214,7 +229,7 @@ def run(args: argparse.Namespace) -> int:
 def train_and_finish(args, inp: Path, out: Path, kind: str, overrides: dict, feed, log) -> int:
     if args.follow:
         from recon.follow import FollowError, FollowOptions, follow
-        cfg = config_from_args(args, overrides)
+        cfg = config_from_args(args, overrides, live=True)
         try:
             trainer, data_dir = follow(inp, out, cfg, FollowOptions(after_iterations=args.after), log,
                                        prepare_options=prepare_options(args), on_step=feed.on_step)
@@ -232,11 +247,19 @@ def train_and_finish(args, inp: Path, out: Path, kind: str, overrides: dict, fee
                     raise SystemExit(prepare_refused(inp, data_dir, exc)) from None
         scene = Scene(load_dataset(data_dir))
         trainer = make_trainer(args, scene, out, overrides)
-        trainer.train(on_step=feed.on_step)
+        try:
+            trainer.train(on_step=feed.on_step)
+        except TrainingDiverged as exc:
+            feed.publish_status(trainer, state="failed")
+            write_history(trainer, out)
+            raise SystemExit(f"recon run: {exc}. What happened: {out / 'events.json'}") from None
     feed.publish_status(trainer, state="finishing")
     summary = finish(trainer, out, data_dir)
     feed.finish(trainer)
     print(json.dumps(summary["metrics"], indent=2))
+    print(f"stopped: {summary['stop_reason']}")
+    for event in trainer.events:
+        print(f"divergence: {event}")
     print(f"{trainer.model.num_gaussians} Gaussians {summary['gaussians_per_role']}, "
           f"{summary['model_bytes'] / 1e6:.1f} MB, trained {summary['train_seconds']:.0f} s -> {out}")
     return 0
@@ -261,8 +284,14 @@ def register(sub) -> None:
     p.add_argument("--method", default="dtg", choices=list(METHODS),
                    help="dtg (full) or a baseline/ablation of the paper's Table 3 (default: dtg)")
     p.add_argument("--out", required=True, help="run folder (created)")
-    p.add_argument("--iterations", type=int, help="iterations (default 3000 unless --minutes)")
-    p.add_argument("--minutes", type=float, help="wall-clock budget; the schedule is stretched to fit it")
+    p.add_argument("--iterations", type=int,
+                   help="train exactly N iterations (default: until held-out error has converged, "
+                        "within --minutes)")
+    p.add_argument("--minutes", type=float,
+                   help=f"wall-clock cap (default {DEFAULT_MINUTES:g}); training usually ends earlier, "
+                        f"when held-out error on every 8th time step has converged")
+    p.add_argument("--fixed", action="store_true",
+                   help="train for exactly --minutes (the schedule stretched to fit), not until converged")
     p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoints/latest.pt")
     p.add_argument("--max-gaussians", type=int, help="Gaussian budget (default: 0.5 per pixel of a training image, within 5k..100k)")
     p.add_argument("--auto-budget", action="store_true",

@@ -18,6 +18,7 @@ from torch import nn
 
 from recon import routing
 from recon.config import DensifyConfig
+from recon.gaussians import quat_to_rotmat
 
 
 # ---------------------------------------------------------------- generic ops on every tensor
@@ -40,6 +41,15 @@ def _swap(model_params: nn.ParameterDict, optimizer: torch.optim.Optimizer, para
 
 
 @torch.no_grad()
+def swap_parameter(model_params: nn.ParameterDict, optimizer: torch.optim.Optimizer, key: str,
+                   param_fn, state_fn=None) -> None:
+    """Replace one per-Gaussian parameter (and its Adam moments) with a reshaped version of itself,
+    e.g. trajectories with more knots."""
+    _swap(model_params, optimizer, lambda k, x: param_fn(x) if k == key else x,
+          lambda k, x: (state_fn or param_fn)(x) if k == key else x)
+
+
+@torch.no_grad()
 def duplicate(model_params: nn.ParameterDict, optimizer: torch.optim.Optimizer, mask: torch.Tensor) -> None:
     """Append a copy of the rows in mask (N,) bool."""
     _swap(model_params, optimizer, lambda _, x: torch.cat([x, x[mask]]))
@@ -52,15 +62,6 @@ def remove(model_params: nn.ParameterDict, optimizer: torch.optim.Optimizer, mas
     _swap(model_params, optimizer, lambda _, x: x[keep])
 
 
-def _quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
-    q = q / q.norm(dim=1, keepdim=True).clamp_min(1e-12)
-    w, x, y, z = q.unbind(1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], 1).view(-1, 3, 3)
-
-
 @torch.no_grad()
 def split(model_params: nn.ParameterDict, optimizer: torch.optim.Optimizer, mask: torch.Tensor,
           generator: torch.Generator, n_children: int = 2, shrink: float = 1.6) -> None:
@@ -69,7 +70,7 @@ def split(model_params: nn.ParameterDict, optimizer: torch.optim.Optimizer, mask
     means, quats, log_scales = (model_params[k].detach()[idx] for k in ("means", "quats", "log_scales"))
     scales = log_scales.exp()
     noise = torch.randn((n_children, idx.numel(), 3), generator=generator) * scales
-    child_means = (means + torch.einsum("nij,cnj->cni", _quat_to_rotmat(quats), noise)).reshape(-1, 3)
+    child_means = (means + torch.einsum("nij,cnj->cni", quat_to_rotmat(quats), noise)).reshape(-1, 3)
     child_log_scales = (log_scales - torch.log(torch.tensor(shrink))).repeat(n_children, 1)
     keep = ~mask
 

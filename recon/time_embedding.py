@@ -17,22 +17,26 @@ import torch.nn.functional as F
 from torch import nn
 
 
-def lerp_rows(table: torch.Tensor, t: float) -> torch.Tensor:
-    """Row-linear interpolation. table: (R, D); t in [0, 1] maps row 0 .. row R-1. -> (D,)"""
-    rows = table.shape[0]
+def lerp_rows(table: torch.Tensor, t: float, dim: int = 0) -> torch.Tensor:
+    """Linear interpolation along `dim`: t in [0, 1] maps row 0 .. row R-1. table (R, D) -> (D,);
+    with dim=1, (N, R, C) -> (N, C) (per-Gaussian trajectory knots)."""
+    rows = table.shape[dim]
     x = min(max(float(t), 0.0), 1.0) * (rows - 1)
     i0 = min(int(x), rows - 1)
     i1 = min(i0 + 1, rows - 1)
     w = x - i0
-    return table[i0] * (1.0 - w) + table[i1] * w
+    return table.select(dim, i0) * (1.0 - w) + table.select(dim, i1) * w
 
 
-def resample_rows(table: torch.Tensor, rows: int) -> torch.Tensor:
-    """Linear resampling of (R, D) to (rows, D), endpoints kept (align_corners=True)."""
-    if rows == table.shape[0]:
+def resample_rows(table: torch.Tensor, rows: int, dim: int = 0) -> torch.Tensor:
+    """Linear resampling along `dim` to `rows` rows, endpoints kept (align_corners=True): (R, D) ->
+    (rows, D); with dim=1, (N, R, C) -> (N, rows, C)."""
+    if rows == table.shape[dim]:
         return table
-    x = table.t().unsqueeze(0)  # (1, D, R)
-    return F.interpolate(x, size=rows, mode="linear", align_corners=True)[0].t()
+    x = table.movedim(dim, -1)                        # (..., R)
+    flat = x.reshape(-1, 1, x.shape[-1])
+    out = F.interpolate(flat, size=rows, mode="linear", align_corners=True)
+    return out.reshape(*x.shape[:-1], rows).movedim(-1, dim).contiguous()
 
 
 class TimeEmbedding(nn.Module):

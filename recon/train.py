@@ -7,6 +7,7 @@ moments, densification statistics, random generator states, history.
 """
 from __future__ import annotations
 
+import copy
 import math
 import sys
 import time
@@ -18,12 +19,15 @@ import torch
 from recon import routing
 from recon.config import TrainConfig, config_from_dict, config_to_dict
 from recon.eval import psnr
-from recon.gaussians import init_gaussians
+from recon.gaussians import extend_knots, init_gaussians, trajectory_knots
 from recon.losses import EmbeddingSmoothness, rgb_loss, thermal_loss
 from recon.model import DTGModel, check_params, time_rows
+from recon.guard import DivergenceGuard, Event, TrainingDiverged, nonfinite_parameter
+from recon.priors import MotionPriors
+from recon.schedule import Schedule
 from recon.render import inference_masks, render
 from recon.scene import Scene
-from recon.strategy import Strategy
+from recon.strategy import Strategy, swap_parameter
 from recon.time_embedding import resample_rows
 
 
@@ -96,13 +100,24 @@ class Trainer:
         self.strategy = Strategy(cfg.densify, cfg.model.modalities, self.extent, self.gen)
         self.smoothness = EmbeddingSmoothness(cfg.loss.embedding_knn, cfg.loss.embedding_knn_sample,
                                               cfg.loss.embedding_knn_falloff, self.extent)
+        self.priors = MotionPriors(cfg.priors, self.extent)
         self.iteration = 0
         self.elapsed = 0.0
         self.history: list[dict] = []
         self.best_holdout = -math.inf
         self.rounds_without_gain = 0
-        self.holdout = self._holdout_views()
+        self.schedule = Schedule(cfg.iterations, cfg.minutes, cfg.stop.converge, cfg.stop.hold_at,
+                                 cfg.stop.patience, cfg.stop.min_gain_db)
+        self.guard = DivergenceGuard(cfg.guard)
+        self.lr_scale = 1.0          # lowered by each rollback
+        self.events: list[dict] = []   # divergences and rollbacks, for the log, history and status
+        self._snapshot: dict | None = None
+        self._hold_over = False
         self.progress_fn = None    # live training (recon.follow) drives the schedule itself
+        self.holdout = self._holdout_views()
+        if self.cfg.stop.converge and not self.validation_times:
+            self.schedule.release("no held-out time steps to judge convergence (fewer than "
+                                  f"{cfg.stop.validation_every // 2 + 1}): the nominal schedule")
 
     # ------------------------------------------------------------------ set-up
     def _init_model(self) -> DTGModel:
@@ -118,9 +133,11 @@ class Trainer:
             keep = torch.randperm(len(pts), generator=self.gen)[: self.cfg.max_points]
             pts, rgb = pts[keep], rgb[keep]
         temps = initial_temperatures(self.scene, pts) if "thermal" in self.cfg.model.modalities else None
-        params = init_gaussians(pts, rgb, temps, self.cfg.model, self.cfg.routing, self.gen)
+        n_times = self.scene.steps_per_unit_time()
+        params = init_gaussians(pts, rgb, temps, self.cfg.model, self.cfg.routing, self.gen,
+                                trajectory_knots(self.cfg.model, n_times))
         bgs = {m: initial_background(self.scene, m) for m in self.cfg.model.modalities}
-        return DTGModel(self.cfg.model, params, n_times=self.scene.steps_per_unit_time(), backgrounds=bgs)
+        return DTGModel(self.cfg.model, params, n_times=n_times, backgrounds=bgs)
 
     def _base_lr(self, key: str) -> float:
         lr = self.cfg.lr
@@ -130,6 +147,10 @@ class Trainer:
             if key.endswith("_rest"):
                 return lr.rgb_rest if "rgb" in key else lr.thermal / 20
             return lr.rgb_dc if "rgb" in key else lr.thermal
+        if key == "trajectory":
+            return lr.trajectory_scene[0] * self.extent
+        if key == "dynamic_logit":
+            return lr.dynamic
         table = {"quats": lr.quats, "log_scales": lr.scales, "route_logits": self.cfg.routing.lr}
         if key in table:
             return table[key]
@@ -140,23 +161,31 @@ class Trainer:
         raise KeyError(f"no learning rate for Gaussian parameter {key!r}")
 
     def _build_optimizer(self) -> torch.optim.Optimizer:
-        groups = [{"params": [p], "name": k, "lr": self._base_lr(k)} for k, p in self.model.gaussians.items()]
+        groups = [{"params": [p], "name": k, "lr": self._base_lr(k), "base_lr": self._base_lr(k)}
+                  for k, p in self.model.gaussians.items()]
         if self.cfg.model.deformation != "none":
             groups.append({"params": list(self.model.deformers.parameters()), "name": "deformation",
                            "lr": self.cfg.lr.deformation_scene[0] * self.extent})
             groups.append({"params": list(self.model.time_embedding.parameters()), "name": "time_embedding",
                            "lr": self.cfg.lr.time_embedding[0]})
         groups.append({"params": list(self.model.backgrounds.parameters()), "name": "backgrounds",
-                       "lr": self.cfg.lr.thermal_background})
+                       "lr": self.cfg.lr.thermal_background, "base_lr": self.cfg.lr.thermal_background})
         return torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)
 
+    def uses_validation(self) -> bool:
+        """Whether held-out training time steps decide anything (when to stop, how many Gaussians)."""
+        return (self.cfg.stop.converge or self.cfg.densify.auto_stop) and self.progress_fn is None
+
     def _holdout_views(self):
-        """Views for the progress line and, with the automatic budget, for deciding when to stop
-        growing. The progress line shows the test view nearest the middle of the sequence; the
-        automatic budget must not look at test data, so it holds out every 8th training time step
-        instead (those steps are then not trained on)."""
+        """Views for the progress line and, when held-out error decides when to stop or how many
+        Gaussians to grow, for that decision. The progress line shows the test view nearest the
+        middle of the sequence; decisions must not look at test data, so they use every 8th
+        training time step instead (offset 4), kept out of training until the schedule's hold
+        ends (with the automatic budget alone: for the whole run)."""
         out = {}
-        held = set(self.scene.times[4::8]) if self.cfg.densify.auto_stop else set()
+        every = self.cfg.stop.validation_every
+        held = set(self.scene.times[every // 2::every]) if self.uses_validation() else set()
+        self.validation_times = held
         self.train_times = [t for t in self.scene.times if t not in held]
         for m in self.cfg.model.modalities:
             if held:
@@ -181,16 +210,24 @@ class Trainer:
                 self.model.n_times = scene.steps_per_unit_time()
 
     def extend_time(self, factor: int) -> None:
-        """Make the time embedding cover a `factor` times longer span without losing what it
-        learned (TimeEmbedding.extended); its Adam moments are padded with zeros."""
+        """Make the time embedding (and trajectories) cover a `factor` times longer span without
+        losing what they learned (TimeEmbedding.extended); Adam moments are padded with zeros."""
         def pad(v: torch.Tensor, rows: int) -> torch.Tensor:
             return torch.cat([v, v.new_zeros(rows - v.shape[0], *v.shape[1:])])
         self._replace_time_tables(self.model.time_embedding.extended(factor), pad)
+        self._resize_trajectories(lambda x, moment: extend_knots(x, factor, zero=moment))
 
     def refine_time(self, factor: int) -> None:
-        """`factor` times more time-embedding rows over the same span (TimeEmbedding.refined); Adam
-        moments are interpolated like the rows."""
+        """`factor` times more time-embedding rows (and trajectory knots) over the same span
+        (TimeEmbedding.refined); Adam moments are interpolated like the rows."""
         self._replace_time_tables(self.model.time_embedding.refined(factor), resample_rows)
+        self._resize_trajectories(lambda x, _: resample_rows(x, (x.shape[1] - 1) * factor + 1, dim=1))
+
+    def _resize_trajectories(self, fn) -> None:
+        """fn(knots (N, K, 3), is_moment) -> (N, K', 3) for the trajectory and its Adam moments."""
+        if "trajectory" in self.model.gaussians:
+            swap_parameter(self.model.gaussians, self.optimizer, "trajectory",
+                           lambda x: fn(x, False), lambda x: fn(x, True))
 
     @torch.no_grad()
     def _replace_time_tables(self, new: dict[str, torch.Tensor], moments) -> None:
@@ -212,16 +249,17 @@ class Trainer:
     def progress(self) -> float:
         if self.progress_fn is not None:
             return self.progress_fn(self)
-        if self.cfg.minutes:
-            return min(self.elapsed / (60.0 * self.cfg.minutes), 1.0)
-        return min(self.iteration / max(self.cfg.iterations, 1), 1.0)
+        return self.schedule.progress(self.iteration, self.elapsed)
 
     def done(self) -> bool:
         return self.progress() >= 1.0
 
+    def stop_reason(self) -> str:
+        return self.schedule.end_reason(self.iteration)
+
     def expected_iterations(self) -> float:
         """Iterations this run will make: the budget, or with --minutes the pace so far."""
-        if self.cfg.minutes and self.iteration >= 20 and self.progress() > 0:
+        if self.cfg.minutes and not self.cfg.stop.converge and self.iteration >= 20 and self.progress() > 0:
             return self.iteration / self.progress()
         return float(self.cfg.iterations)
 
@@ -230,13 +268,18 @@ class Trainer:
         routing_scale = max(1.0, self.cfg.routing.lr_reference_iterations / max(self.expected_iterations(), 1.0))
         for group in self.optimizer.param_groups:
             if group["name"] == "route_logits":
-                group["lr"] = self.cfg.routing.lr * routing_scale
+                value = self.cfg.routing.lr * routing_scale
             elif group["name"] == "means":
-                group["lr"] = log_lerp(*lr.means_scene, p) * self.extent
+                value = log_lerp(*lr.means_scene, p) * self.extent
+            elif group["name"] == "trajectory":
+                value = log_lerp(*lr.trajectory_scene, p) * self.extent
             elif group["name"] == "deformation":
-                group["lr"] = log_lerp(*lr.deformation_scene, p) * self.extent
+                value = log_lerp(*lr.deformation_scene, p) * self.extent
             elif group["name"] == "time_embedding":
-                group["lr"] = log_lerp(*lr.time_embedding, p)
+                value = log_lerp(*lr.time_embedding, p)
+            else:
+                value = group["base_lr"]
+            group["lr"] = value * self.lr_scale
 
     def active_sh_degree(self, modality: str, p: float) -> int:
         full = self.cfg.model.rgb_sh_degree if modality == "rgb" else self.cfg.model.thermal_sh_degree
@@ -248,6 +291,25 @@ class Trainer:
         if not self.cfg.model.routing or routing.phase(self.cfg.routing, p) not in ("learn", "specialise"):
             return None
         return routing.gumbel_noise(self.model.gaussians["route_logits"].shape, self.gen)
+
+    def _motion_priors(self, g: dict, t: float, p: float, stats: dict):
+        """The motion priors on the geometry g of the stage that moves every modality."""
+        gs = self.model.gaussians
+        canonical = {"means": gs["means"], "quats": gs["quats"], "log_scales": gs["log_scales"]}
+        stage = self.model.motion_stage()
+        dt = 1.0 / max(self.model.n_times - 1, 1)
+        if self.cfg.priors.static > 0 and "dynamic_logit" in gs:
+            gate = self.model.dynamic_gate().mean()
+            loss_gate = self.cfg.priors.static * gate
+            stats["prior_gate"] = float(gate.detach())
+        else:
+            loss_gate = 0.0
+
+        def means_at(tt: float, idx: torch.Tensor) -> torch.Tensor:
+            return gs["means"][idx] if stage is None else self.model.means_at(stage, tt, p, idx)
+        loss, terms = self.priors(canonical, g, means_at, t, dt, self.gen)
+        stats.update({f"prior_{k}": v for k, v in terms.items()})
+        return loss + loss_gate
 
     def _stage(self, modality: str, t: float, p: float, noise, rgb_geometry, regularise: bool) -> dict:
         views = self.scene.views_at(modality, t)
@@ -274,6 +336,8 @@ class Trainer:
             rec = self.cfg.loss.thermal_l1 * thermal_loss(image[..., 0], target, valid)
         if regularise:
             reg = reg + self._regularisers(stats)
+        if self.priors.enabled and self.model.stage_of(modality) == self.model.motion_stage():
+            reg = reg + self._motion_priors(g, t, p, stats)
         loss = rec + reg
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
@@ -318,7 +382,20 @@ class Trainer:
         if report:
             stats.update(report)
         self.elapsed += time.perf_counter() - start
+        if self.progress_fn is None:
+            self.schedule.advance(self.iteration, self.elapsed)
+            self._after_hold()
         return stats
+
+    def _after_hold(self) -> None:
+        """Once the schedule's hold has ended: say why, and train on the held-out time steps too
+        (with the automatic budget they stay out: it keeps deciding)."""
+        if not self.schedule.released or self._hold_over:
+            return
+        self._hold_over = True
+        self.log(f"iteration {self.iteration}: {self.schedule.stop_reason}")
+        if not self.cfg.densify.auto_stop:
+            self.train_times = list(self.scene.times)
 
     # ------------------------------------------------------------------ evaluation
     @torch.no_grad()
@@ -382,9 +459,25 @@ class Trainer:
         self._window = (getattr(self, "_window", []) + [time.perf_counter() - t0])[-50:]
         self._last = {**getattr(self, "_last", {}), **{k: v for k, v in stats.items() if k.startswith("loss_")}}
         it = self.iteration
+        blow_up = self.guard.check_step(stats)
+        if blow_up is None and it % 25 == 0:
+            bad = nonfinite_parameter(self.model)
+            blow_up = f"parameter {bad} is not finite" if bad else None
+        if blow_up:
+            self._rollback(blow_up)
+            return stats
         if it % self.cfg.eval_every == 0 or self.done():
             scores = self.holdout_psnr()
+            blow_up = self.guard.check_holdout(scores) if self.validation_times else None
+            if blow_up:
+                self._rollback(blow_up)
+                return stats
             self._auto_budget(scores)
+            if self.validation_times and not self.schedule.released:
+                self.schedule.observe(it, sum(scores.values()) / len(scores) if scores else None)
+                self._after_hold()
+            if it - (self._snapshot or {}).get("iteration", -10**9) >= self.cfg.guard.snapshot_every:
+                self._take_snapshot()
             record = {"iteration": it, "elapsed_s": round(self.elapsed, 3), "progress": self.progress(),
                       "gaussians": self.model.num_gaussians, "roles": self.counts(),
                       **{f"psnr_{m}": round(v, 3) for m, v in scores.items()},
@@ -394,7 +487,9 @@ class Trainer:
                 on_eval(self, record)
         if it % self.cfg.log_every == 0 or self.done():
             self._print_progress(self._last, 1.0 / (sum(self._window) / len(self._window)))
-        if self.out_dir and (it % self.cfg.checkpoint_every == 0 or self.done()):
+        # not while a loss is above its limit: the state may be the start of a blow-up
+        due = it % self.cfg.checkpoint_every == 0 and not self.guard.suspicious()
+        if self.out_dir and (due or self.done()):
             self.save_checkpoint(self.out_dir / "checkpoints" / "latest.pt")
         return stats
 
@@ -416,6 +511,35 @@ class Trainer:
         sys.stderr.write(line + end)
         sys.stderr.flush()
 
+    # ------------------------------------------------------------------ divergence
+    def _take_snapshot(self) -> None:
+        """Keep the current (healthy) state in memory to roll back to."""
+        self._snapshot = {"iteration": self.iteration, "model": copy.deepcopy(self.model.state_for_checkpoint()),
+                          "optimizer": copy.deepcopy(self.optimizer.state_dict())}
+
+    def _rollback(self, reason: str) -> None:
+        """Return to the last good state with lower learning rates; fail after max_rollbacks."""
+        rollbacks = sum(1 for e in self.events if e.get("rolled_back_to") is not None)
+        snap = self._snapshot
+        if snap is None or rollbacks >= self.cfg.guard.max_rollbacks:
+            event = Event(self.iteration, reason)
+            self.events.append(event.as_dict())
+            why = "no good state to return to" if snap is None else f"{rollbacks} rollbacks already"
+            raise TrainingDiverged(f"training diverged at iteration {self.iteration}: {reason} ({why}); "
+                                   f"lower the learning rates (recon/config.py LearningRates) or check the data")
+        self.lr_scale *= self.cfg.guard.lr_factor
+        event = Event(self.iteration, reason, snap["iteration"], self.lr_scale)
+        self.events.append(event.as_dict())
+        self.log(f"divergence at iteration {self.iteration}: {reason}; rolled back to iteration "
+                 f"{snap['iteration']} with learning rates x{self.lr_scale:g}")
+        self.model = DTGModel.from_checkpoint(self.cfg.model, copy.deepcopy(snap["model"]))
+        self.optimizer = self._build_optimizer()
+        self.optimizer.load_state_dict(copy.deepcopy(snap["optimizer"]))
+        self.strategy.stats = type(self.strategy.stats)()
+        self.smoothness.load_state({"n": -1, "neighbours": None})
+        self.priors.load_state({"n": -1, "neighbours": None})
+        self.guard.reset()
+
     # ------------------------------------------------------------------ checkpoints
     def save_checkpoint(self, path: Path) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -427,6 +551,9 @@ class Trainer:
                          "growing": self.strategy.growing},
             "auto": {"best": self.best_holdout, "rounds": self.rounds_without_gain},
             "neighbours": self.smoothness.state(),
+            "prior_neighbours": self.priors.state(),
+            "schedule": self.schedule.state(), "lr_scale": self.lr_scale, "events": self.events,
+            "guard_best": self.guard.best_holdout,
             "extent": self.extent,
         }
         tmp = path.with_suffix(".tmp")
@@ -452,6 +579,15 @@ class Trainer:
         trainer.strategy.growing = state["strategy"]["growing"]
         trainer.best_holdout, trainer.rounds_without_gain = state["auto"]["best"], state["auto"]["rounds"]
         trainer.smoothness.load_state(state["neighbours"])
+        if "prior_neighbours" in state:
+            trainer.priors.load_state(state["prior_neighbours"])
+        if "schedule" in state:
+            trainer.schedule.load_state(state["schedule"])
+            trainer.lr_scale, trainer.events = state["lr_scale"], state["events"]
+            trainer.guard.best_holdout = state["guard_best"]
+            trainer._hold_over = trainer.schedule.released
+            if trainer.schedule.released and not cfg.densify.auto_stop:
+                trainer.train_times = list(scene.times)
         trainer.extent = state["extent"]
         trainer.strategy.extent = state["extent"]
         return trainer

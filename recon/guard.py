@@ -1,0 +1,108 @@
+"""Divergence guard: training never fails silently.
+
+A run is watched for three signs of a blow-up:
+- a non-finite loss or parameter;
+- training loss far above where it was: the median of the last ``patience`` iterations above
+  ``factor`` x the median of the ``window`` iterations before them (one bad view is noise; a run
+  of them is not);
+- held-out PSNR collapsing: ``holdout_drop_db`` below the best seen so far.
+
+The trainer keeps an in-memory snapshot of the last state that passed these checks. On a blow-up
+it rolls back to it with every learning rate multiplied by ``lr_factor``, logs the event (run log,
+history, status page) and goes on; after ``max_rollbacks`` it stops with `TrainingDiverged`.
+"""
+from __future__ import annotations
+
+import math
+import statistics
+from collections import deque
+from dataclasses import dataclass, field
+
+import torch
+
+from recon.config import GuardConfig
+
+
+class TrainingDiverged(RuntimeError):
+    """Training blew up more often than the guard may roll back."""
+
+
+@dataclass
+class Event:
+    iteration: int
+    reason: str
+    rolled_back_to: int | None = None
+    lr_scale: float | None = None
+
+    def as_dict(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if v is not None}
+
+
+@dataclass
+class DivergenceGuard:
+    cfg: GuardConfig
+    losses: dict[str, deque] = field(default_factory=dict)
+    over: dict[str, int] = field(default_factory=dict)
+    best_holdout: dict[str, float] = field(default_factory=dict)
+
+    def reset(self) -> None:
+        """Forget the loss history (after a rollback the old medians no longer apply)."""
+        self.losses.clear()
+        self.over.clear()
+
+    def check_step(self, stats: dict) -> str | None:
+        """A reason if this iteration's losses say the run blew up, else None. Per-view losses
+        are noisy, so the test is on medians: the last ``patience`` iterations against the
+        ``window`` before them."""
+        if not self.cfg.enabled:
+            return None
+        for key, value in stats.items():
+            if not key.startswith("loss_"):
+                continue
+            value = float(value)
+            if not math.isfinite(value):
+                return f"{key[5:]} loss is {value}"
+            history = self.losses.setdefault(key, deque(maxlen=self.cfg.window + self.cfg.patience))
+            history.append(value)
+            recent, before = self._split(history)
+            if before is None:
+                continue
+            now, then = statistics.median(recent), statistics.median(before)
+            self.over[key] = int(now > self.cfg.factor * max(then, 1e-8))
+            if self.over[key] and len(recent) == self.cfg.patience:
+                return (f"{key[5:]} loss median {now:.4f} over the last {self.cfg.patience} iterations "
+                        f"is above {self.cfg.factor:g}x its median {then:.4f} before them")
+        return None
+
+    def _split(self, history: deque) -> tuple[list, list | None]:
+        """(the last `patience` values, the ones before them) once enough came before."""
+        values = list(history)
+        recent, before = values[-self.cfg.patience:], values[:-self.cfg.patience]
+        return recent, (before if len(before) >= max(self.cfg.window // 4, 1) else None)
+
+    def suspicious(self) -> bool:
+        """Some loss is above its limit right now (not yet long enough to call it a blow-up): not
+        the moment to write a checkpoint."""
+        return any(self.over.values())
+
+    def check_holdout(self, scores: dict[str, float]) -> str | None:
+        """A reason if held-out PSNR collapsed, else None (and the best so far is updated)."""
+        if not self.cfg.enabled:
+            return None
+        for m, v in scores.items():
+            if not math.isfinite(v):
+                return f"held-out {m} PSNR is {v}"
+            best = self.best_holdout.get(m, -math.inf)
+            if v < best - self.cfg.holdout_drop_db:
+                return f"held-out {m} PSNR fell to {v:.2f} dB from its best {best:.2f} dB"
+        for m, v in scores.items():
+            self.best_holdout[m] = max(self.best_holdout.get(m, -math.inf), v)
+        return None
+
+
+def nonfinite_parameter(module: torch.nn.Module) -> str | None:
+    """The name of the first parameter holding NaN or inf, or None."""
+    for name, p in module.named_parameters():
+        if not torch.isfinite(p).all():
+            return name
+    return None

@@ -1,0 +1,88 @@
+"""Training never fails silently: blow-ups are detected, rolled back, logged, and a repeated one
+stops the run with an error (recon/guard.py, Trainer._rollback)."""
+import math
+
+import pytest
+import torch
+
+from recon.config import GuardConfig
+from recon.guard import DivergenceGuard, TrainingDiverged
+from recon.train import Trainer
+
+from tests.test_train import small_cfg, tiny
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    return tiny(tmp_path_factory)
+
+
+def test_a_run_of_high_losses_is_a_blow_up_but_spikes_are_not():
+    guard = DivergenceGuard(GuardConfig(window=40, factor=2.0, patience=6))
+    for i in range(60):
+        assert guard.check_step({"loss_rgb": 0.05 + 0.02 * (i % 3)}) is None
+    for _ in range(4):                          # spikes, even one in three iterations: noise
+        assert guard.check_step({"loss_rgb": 0.5}) is None
+        assert guard.check_step({"loss_rgb": 0.05}) is None
+        assert guard.check_step({"loss_rgb": 0.07}) is None
+    for _ in range(8):
+        assert guard.check_step({"loss_rgb": 0.06}) is None
+    reasons = [guard.check_step({"loss_rgb": 0.25}) for _ in range(6)]
+    first = next(i for i, r in enumerate(reasons) if r)      # once half the window is high
+    assert first == 2 and "rgb loss median 0.1550 over the last 6 iterations" in reasons[first]
+    assert guard.suspicious()
+    assert "nan" in guard.check_step({"loss_thermal": math.nan})
+
+
+def test_collapsing_heldout_psnr_is_a_blow_up():
+    guard = DivergenceGuard(GuardConfig(holdout_drop_db=5.0))
+    assert guard.check_holdout({"rgb": 20.0}) is None
+    assert guard.check_holdout({"rgb": 23.0}) is None
+    assert guard.check_holdout({"rgb": 19.0}) is None           # 4 dB below the best: tolerated
+    assert "fell to 14.70 dB from its best 23.00" in guard.check_holdout({"rgb": 14.7})
+
+
+def corrupt(trainer: Trainer) -> None:
+    """What a blow-up leaves behind: every Gaussian thrown far out of the scene."""
+    with torch.no_grad():
+        trainer.model.gaussians["means"].add_(50.0 * trainer.extent)
+
+
+def train_with_corruptions(trainer: Trainer, at: set[int]) -> None:
+    while not trainer.done():
+        if trainer.iteration in at:
+            corrupt(trainer)
+        trainer.tick()
+
+
+def test_a_blow_up_is_rolled_back_with_lower_learning_rates_and_logged(scene):
+    cfg = small_cfg(iterations=220)
+    cfg.eval_every = 20
+    cfg.guard = GuardConfig(window=40, patience=6, snapshot_every=20)
+    messages = []
+    tr = Trainer(cfg, scene, log=messages.append)
+    clean = Trainer(small_cfg(iterations=220), scene, log=lambda _: None)
+    while not clean.done():
+        clean.tick()
+    train_with_corruptions(tr, {121})
+    assert len(tr.events) == 1, tr.events
+    event = tr.events[0]
+    assert 121 < event["iteration"] <= 121 + 6 and event["rolled_back_to"] == 120
+    assert event["lr_scale"] == 0.5 and tr.lr_scale == 0.5
+    assert any("divergence at iteration" in m and "rolled back to iteration 120" in m for m in messages)
+    # it recovered: the scene is where it was, and held-out quality is close to an untouched run
+    assert tr.model.gaussians["means"].detach().abs().max() < 10 * tr.extent
+    after, reference = tr.holdout_psnr(), clean.holdout_psnr()
+    for m in reference:
+        assert after[m] > reference[m] - 2.0, (after, reference)
+
+
+def test_a_repeated_blow_up_stops_the_run_loudly(scene):
+    cfg = small_cfg(iterations=400)
+    cfg.eval_every = 20
+    cfg.guard = GuardConfig(window=40, patience=6, snapshot_every=20, max_rollbacks=2)
+    tr = Trainer(cfg, scene, log=lambda _: None)
+    with pytest.raises(TrainingDiverged, match="training diverged at iteration"):
+        train_with_corruptions(tr, {101, 161, 221, 281})
+    assert [e.get("rolled_back_to") for e in tr.events][:2] == [100, 160]
+    assert len(tr.events) == 3 and "rolled_back_to" not in tr.events[2]
