@@ -1,4 +1,4 @@
-"""The measured figures of the README's data section, each from one section of this script.
+"""The measured figures of docs/data.md, each from one section of this script.
 
     PYTHONPATH=. python bench/data_figures.py --out bench/results/data_figures.json
     PYTHONPATH=. python bench/data_figures.py --out /tmp/f.json --only ssim,eval
@@ -20,7 +20,7 @@ after it, because the machine is shared and other jobs skew every timing):
   ssim      recon.eval.ssim at 320x240 RGB: forward (no grad) and forward+backward, median of
             --reps runs after a warm-up, and the fastest run (less skewed by other load); with
             1 thread and with torch's default count (2 threads suffer most from other jobs)
-  simulate  wall time of the `recon simulate` commands of the README, each in a subprocess
+  simulate  wall time of the `recon simulate` commands of docs/data.md, each in a subprocess
             (interpreter start included): 30 steps at 160x120, and at 320x240 with --jobs 2
 
 The JSON written to --out holds {"command", "machine", "sections": {name: {...}}}. With --only,

@@ -51,7 +51,8 @@ COLUMNS = [("psnr_rgb", "RGB PSNR", 2, True), ("psnr_rgb_moving", "RGB PSNR movi
            ("psnr_thermal", "th PSNR", 2, True), ("mae_k_thermal", "th MAE K", 2, False),
            ("mae_k_moving", "MAE moving", 2, False), ("mae_k_moving_hot", "MAE moving-hot", 2, False),
            ("mae_k_static", "MAE static", 2, False), ("p95_k_moving", "p95 moving", 1, False),
-           ("gaussians", "Gaussians", 0, None), ("iterations", "it", 0, None), ("train_s", "train s", 0, None)]
+           ("gaussians", "Gaussians", 0, None), ("iterations", "it", 0, None), ("train_s", "train s", 0, None),
+           ("ms_per_it", "ms/it", 1, None)]
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -83,6 +84,27 @@ def _dig(d, path):
             return None
         d = d[key]
     return d
+
+
+def apply_overrides(cfg, overrides: dict) -> None:
+    """{"priors.rigidity": 4, "model.deform_geometry": ["rgb"]} -> set on the TrainConfig."""
+    for key, value in overrides.items():
+        obj, *path = [cfg, *key.split(".")]
+        for part in path[:-1]:
+            obj = getattr(obj, part)
+        if not hasattr(obj, path[-1]):
+            raise SystemExit(f"--variant: the config has no {key!r}")
+        setattr(obj, path[-1], tuple(value) if isinstance(value, list) else value)
+    cfg.model.__post_init__()
+
+
+def parse_variant(text: str) -> tuple[str, tuple[str, dict]]:
+    """'dtg+rigid=dtg:{"priors.rigidity": 4}' -> ('dtg+rigid', ('dtg', {...}))"""
+    name, _, rest = text.partition("=")
+    base, _, overrides = rest.partition(":")
+    if not name or base not in METHODS:
+        raise SystemExit(f"--variant {text!r}: expected NAME=METHOD:JSON with METHOD one of {', '.join(METHODS)}")
+    return name, (base, json.loads(overrides or "{}"))
 
 
 def train_with_curve(cfg, scene: Scene, run_dir: Path, checkpoints: int, log) -> tuple[Trainer, list[dict]]:
@@ -135,8 +157,11 @@ def run_one(job: dict) -> dict:
     if done.exists() and (run_dir / "curve.json").exists():
         summary = json.loads(done.read_text())
         return {"summary": summary, "curve": json.loads((run_dir / "curve.json").read_text()), **job}
-    cfg = make_config(method, minutes=job["minutes"], log_every=10**9, checkpoint_every=10**9)
+    base, overrides = job["variants"].get(method, (method, {}))
+    cfg = make_config(base, minutes=job["minutes"], log_every=10**9, checkpoint_every=10**9)
+    cfg.method = method
     cfg.stop.converge = job["converge"]
+    apply_overrides(cfg, overrides)
     scene = Scene(load_dataset(data))
     t0 = time.perf_counter()
     reset_peak_rss()
@@ -153,6 +178,7 @@ def summarise(summary: dict) -> dict:
     return {**flatten(summary["metrics"]), "gaussians": summary["gaussians"],
             "roles": summary["gaussians_per_role"], "model_mb": summary["model_bytes"] / 1e6,
             "train_s": summary["train_seconds"], "iterations": summary["iterations"],
+            "ms_per_it": 1000 * summary["train_seconds"] / max(summary["iterations"], 1),
             "peak_rss_mb": summary.get("peak_rss_mb"), "stop_reason": summary.get("stop_reason"),
             "events": len(summary.get("events", []))}
 
@@ -202,7 +228,7 @@ def plot(results: list[dict], scenes: list[str], methods: list[str], path: Path)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    colours = {m: f"C{i}" for i, m in enumerate(METHODS)}
+    colours = {m: f"C{i % 10}" for i, m in enumerate([*METHODS, *(m for m in methods if m not in METHODS)])}
     panels = [("psnr_rgb", "RGB PSNR (dB)"), ("psnr_thermal", "thermal PSNR (dB)"),
               ("mae_k_moving", "thermal MAE, moving (K)"), ("gaussians", None)]
     fig, axes = plt.subplots(len(panels), len(scenes), figsize=(4.4 * len(scenes), 3.2 * len(panels)),
@@ -243,7 +269,9 @@ def main() -> int:
     ap.add_argument("--seeds", default="0", help="scene seeds, e.g. 0-7 or 100-107 (default 0)")
     ap.add_argument("--tuned-seeds", default="0-7",
                     help="seeds defaults were tuned on; the table marks the others as never tuned on")
-    ap.add_argument("--methods", default=",".join(METHODS), help="methods (comma-separated)")
+    ap.add_argument("--methods", default=",".join(METHODS), help="methods (comma-separated), or --variant names")
+    ap.add_argument("--variant", action="append", default=[], metavar="NAME=METHOD:JSON",
+                    help='a method with config overrides, e.g. \'dtg+rigid=dtg:{"priors.rigidity": 4}\' (repeatable)')
     ap.add_argument("--minutes", type=float, default=5.0, help="training budget per run (default 5)")
     ap.add_argument("--converge", action="store_true",
                     help="recon run's default: until held-out error converged, --minutes as the cap")
@@ -261,6 +289,10 @@ def main() -> int:
     w, h = (int(v) for v in args.size.split("x"))
     scenes, methods, seeds = args.scenes.split(","), args.methods.split(","), parse_seeds(args.seeds)
     tuned = set(parse_seeds(args.tuned_seeds))
+    variants = dict(parse_variant(v) for v in args.variant)
+    unknown = [m for m in methods if m not in METHODS and m not in variants]
+    if unknown:
+        raise SystemExit(f"unknown methods {unknown}: use {', '.join(METHODS)} or define them with --variant")
     args.out.mkdir(parents=True, exist_ok=True)
     jobs = []
     for scene in scenes:
@@ -272,7 +304,8 @@ def main() -> int:
                 simulate_dataset(data, SimulateConfig(variant=scene, frames=args.frames, width=w, height=h, seed=seed))
             jobs += [{"scene": scene, "seed": seed, "method": m, "data": str(data),
                       "run_dir": str(args.out / "runs" / name / m), "minutes": args.minutes,
-                      "converge": args.converge, "checkpoints": args.checkpoints, "threads": threads}
+                      "converge": args.converge, "checkpoints": args.checkpoints, "threads": threads,
+                      "variants": variants}
                      for m in methods]
     if args.jobs > 1:
         with ProcessPoolExecutor(args.jobs) as pool:

@@ -7,7 +7,7 @@ C=1, normalised temperature),
 an opacity logit ``opacity_m`` (N,), and the deformation embedding(s); routing logits
 ``route_logits`` (N, 3) when routing is on; per-Gaussian trajectory knots ``trajectory``
 (N, K, 3) when ``trajectory_step`` is set; the static/dynamic gate logit ``dynamic_logit`` (N,)
-with ``dynamic_gate``.
+with ``dynamic_gate``; the static/dynamic flag ``dynamic`` (N,) with ``motion_split`` (not learned).
 
 Everything that has one row per Gaussian lives in this dict, so densification and pruning
 (recon.strategy) handle a new attribute without any change.
@@ -79,10 +79,11 @@ def extend_knots(knots: torch.Tensor, factor: int, zero: bool = False) -> torch.
 
 def init_gaussians(points: torch.Tensor, colors: torch.Tensor, temperatures: torch.Tensor | None,
                    cfg: ModelConfig, routing: RoutingConfig, generator: torch.Generator,
-                   knots: int = 0) -> dict[str, torch.Tensor]:
+                   knots: int = 0, dynamic: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
     """Gaussians at initial points, 3DGS style.
 
-    points: (M, 3); colors: (M, 3) in [0, 1]; temperatures: (M,) normalised temperature or None.
+    points: (M, 3); colors: (M, 3) in [0, 1]; temperatures: (M,) normalised temperature or None;
+    dynamic: (M,) bool, which points may move (ModelConfig.motion_split; None: all).
     Scales are isotropic, sqrt of the mean squared distance to the 3 nearest neighbours.
     """
     m = points.shape[0]
@@ -110,4 +111,6 @@ def init_gaussians(points: torch.Tensor, colors: torch.Tensor, temperatures: tor
         params["trajectory"] = torch.zeros(m, knots, 3)
     if cfg.dynamic_gate and cfg.deformation != "none":
         params["dynamic_logit"] = torch.full((m,), cfg.init_dynamic)
+    if cfg.motion_split and cfg.deformation != "none":
+        params["dynamic"] = (dynamic if dynamic is not None else torch.ones(m)).float()   # 1: may move
     return params

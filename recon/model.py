@@ -22,6 +22,7 @@ from recon.gaussians import embedding_keys, sh_coeffs
 from recon.time_embedding import TimeEmbedding, lerp_rows
 
 GEOMETRY = ("means", "quats", "log_scales")
+NOT_LEARNED = ("dynamic",)      # per-Gaussian state the trainer sets (densification still carries it)
 
 
 def feature_shape(cfg: ModelConfig, modality: str) -> tuple[int, int]:
@@ -43,7 +44,8 @@ class DTGModel(nn.Module):
         super().__init__()
         self.cfg = cfg
         self.n_times = n_times
-        self.gaussians = nn.ParameterDict({k: nn.Parameter(v) for k, v in params.items()})
+        self.gaussians = nn.ParameterDict({k: nn.Parameter(v, requires_grad=k not in NOT_LEARNED)
+                                           for k, v in params.items()})
         bg = backgrounds or {}
         self.backgrounds = nn.ParameterDict({
             m: nn.Parameter(bg.get(m, torch.zeros(feature_shape(cfg, m)[1]))) for m in cfg.modalities})
@@ -94,12 +96,14 @@ class DTGModel(nn.Module):
         moved = res["means"]
         if "trajectory" in self.gaussians:
             moved = moved + lerp_rows(self.gaussians["trajectory"][index], t, dim=1)
-        return self.gaussians["means"][index] + moved * self.dynamic_gate(index)[:, None]
+        if "dynamic_logit" in self.gaussians:
+            moved = moved * self.dynamic_gate(index)[:, None]
+        if "dynamic" in self.gaussians:
+            moved = moved * self.gaussians["dynamic"][index, None]
+        return self.gaussians["means"][index] + moved
 
     def dynamic_gate(self, index: torch.Tensor | slice = slice(None)) -> torch.Tensor:
-        """(N,) or (S,) how much each Gaussian may move (1 without a static/dynamic split)."""
-        if "dynamic_logit" not in self.gaussians:
-            return self.gaussians["means"].new_ones(())
+        """(N,) or (S,) how much each Gaussian may move (needs a static/dynamic split)."""
         return torch.sigmoid(self.gaussians["dynamic_logit"][index])
 
     def render_inputs(self, modality: str, t: float, progress: float = 1.0,
@@ -136,6 +140,8 @@ class DTGModel(nn.Module):
             if "dynamic_logit" in g:
                 gate = self.dynamic_gate()[:, None]
                 applied = {k: v * gate for k, v in applied.items()}
+            if "dynamic" in g:
+                applied = {k: v * g["dynamic"][:, None] for k, v in applied.items()}
             geo = {k: geo[k] + applied[k] for k in GEOMETRY}
             if f"opacity_{modality}" in res:
                 opacity_logit = opacity_logit + res[f"opacity_{modality}"][:, 0]
@@ -168,6 +174,7 @@ def check_params(cfg: ModelConfig, params: dict[str, torch.Tensor]) -> None:
     expected += embedding_keys(cfg) + (["route_logits"] if cfg.routing else [])
     expected += ["trajectory"] if cfg.trajectory_step and cfg.deformation != "none" else []
     expected += ["dynamic_logit"] if cfg.dynamic_gate and cfg.deformation != "none" else []
+    expected += ["dynamic"] if cfg.motion_split and cfg.deformation != "none" else []
     n = params["means"].shape[0]
     for key in expected:
         if key not in params:

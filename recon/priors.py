@@ -98,7 +98,8 @@ class MotionPriors:
         """Weighted prior loss and its terms for logging.
 
         canonical / deformed: {"means": (N, 3), "quats": (N, 4)} at rest and at time t (deformed
-        carries the graph of the deformation); canonical also has "log_scales" (N, 3). geometry_at(t, index) -> means (S, 3) of the
+        carries the graph of the deformation); canonical also has "log_scales" (N, 3) and, with a
+        static/dynamic split, "dynamic" (N,) in {0, 1}. geometry_at(t, index) -> means (S, 3) of the
         Gaussians `index` at time t (only called for trajectory smoothness)."""
         cfg, n = self.cfg, canonical["means"].shape[0]
         zero = deformed["means"].sum() * 0
@@ -110,6 +111,9 @@ class MotionPriors:
             nb = self._graph(canonical["means"])[idx]
             d2 = (canonical["means"].detach()[idx, None] - canonical["means"].detach()[nb]).pow(2).sum(-1)
             w = torch.exp(-cfg.knn_falloff * d2 / self.extent ** 2)
+            if "dynamic" in canonical:      # static Gaussians do not move: only moving pairs count
+                dyn = canonical["dynamic"]
+                w = w * dyn[idx, None] * dyn[nb]
             rows = torch.unique(torch.cat([idx, nb.flatten()]))
             # rotations only for the rows used: remap indices into `rows`
             pos = torch.full((n,), -1, dtype=torch.long)

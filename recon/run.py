@@ -29,7 +29,8 @@ from recon.config import DEFAULT_MINUTES, METHODS, config_to_dict, make_config
 from recon.data import load_dataset
 from recon.eval import evaluate_run, write_results
 from recon.publish import LivePublisher, TrainingFeed
-from recon.eval.evaluate import frame_metrics
+from recon.eval.evaluate import frame_metrics, moving_masks
+from recon.eval.regions import RegionPool
 from recon.eval.renders import encode_render, write_render_pixels
 from recon.export import export_deformation, export_ply, model_bytes
 from recon.prepare import REPORT_FILE, PrepareError, PrepareOptions, prepare_session
@@ -49,14 +50,18 @@ def test_render(trainer: Trainer, modality: str, view) -> np.ndarray:
 
 
 def evaluate_model(trainer: Trainer, every: int = 1) -> dict:
-    """Mean test metrics per modality straight from the model (every `every`-th test view), with
-    the same encodings and metric code as `recon eval` on written renders, without the disk."""
-    out = {}
-    for m in trainer.cfg.model.modalities:
-        rows = [frame_metrics(trainer.scene.dataset, v.frame, test_render(trainer, m, v), None)
-                for v in trainer.scene.test[m][::every]]
+    """Test metrics straight from the model (every `every`-th test view), with the same encodings
+    and metric code as `recon eval` on written renders, without the disk:
+    {modality: {metric: mean over frames}, "regions": {modality: {region: pooled metrics}}}."""
+    out, pool, ds = {}, RegionPool(), trainer.scene.dataset
+    views = {m: trainer.scene.test[m][::every] for m in trainer.cfg.model.modalities}
+    moving = moving_masks(ds, [v.frame for vs in views.values() for v in vs])
+    for m, vs in views.items():
+        rows = [frame_metrics(ds, v.frame, test_render(trainer, m, v), None, pool, moving[v.frame.file_path])
+                for v in vs]
         if rows:
-            out[m] = {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
+            out[m] = {k: float(np.mean([r[k] for r in rows])) for k in rows[0] if k != "regions"}
+    out["regions"] = pool.result()
     return out
 
 
@@ -128,7 +133,8 @@ def finish(trainer: Trainer, run_dir: Path, dataset_dir: Path) -> dict:
         "method": trainer.cfg.method, "dataset": str(dataset_dir), "iterations": trainer.iteration,
         "train_seconds": round(trainer.elapsed, 2), "gaussians": trainer.model.num_gaussians,
         "gaussians_per_role": trainer.counts(), "model_bytes": model_bytes(trainer.model),
-        "metrics": report.get("mean", report), "finish_seconds": round(time.perf_counter() - t0, 2),
+        "metrics": {**report.get("mean", {}), "regions": report.get("regions", {})},
+        "finish_seconds": round(time.perf_counter() - t0, 2),
         "stop_reason": trainer.stop_reason(), "events": trainer.events,
     }
     (run_dir / "metrics.json").write_text(json.dumps(summary, indent=2))

@@ -23,6 +23,7 @@ from recon.gaussians import extend_knots, init_gaussians, trajectory_knots
 from recon.losses import EmbeddingSmoothness, rgb_loss, thermal_loss
 from recon.model import DTGModel, check_params, time_rows
 from recon.guard import DivergenceGuard, Event, TrainingDiverged, nonfinite_parameter
+from recon.points import changing_points, initial_temperatures
 from recon.priors import MotionPriors
 from recon.schedule import Schedule
 from recon.render import inference_masks, render
@@ -35,31 +36,6 @@ def log_lerp(a: float, b: float, p: float) -> float:
     """Exponential (log-linear) decay from a to b as p goes 0 -> 1 (3DGS get_expon_lr_func)."""
     p = min(max(p, 0.0), 1.0)
     return math.exp(math.log(a) * (1 - p) + math.log(b) * p)
-
-
-def initial_temperatures(scene: Scene, points: torch.Tensor, max_views: int = 6) -> torch.Tensor | None:
-    """Normalised temperature of each point, averaged over a few thermal training views that see it
-    (nearest pixel; occlusion ignored). Points no view sees get the median. -> (M,) or None."""
-    views = scene.train["thermal"]
-    if not views:
-        return None
-    picks = [views[i] for i in np.linspace(0, len(views) - 1, min(max_views, len(views))).round().astype(int)]
-    total, count = torch.zeros(len(points)), torch.zeros(len(points))
-    for view in picks:
-        target, valid = scene.target(view)
-        cam = view.camera
-        pc = points @ cam.viewmat[:3, :3].T + cam.viewmat[:3, 3]
-        z = pc[:, 2]
-        u = (cam.fx * pc[:, 0] / z.clamp_min(1e-6) + cam.cx).floor().long()
-        v = (cam.fy * pc[:, 1] / z.clamp_min(1e-6) + cam.cy).floor().long()
-        ok = (z > 1e-3) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
-        ok[ok.clone()] &= valid[v[ok], u[ok]]
-        total[ok] += target[v[ok], u[ok]]
-        count[ok] += 1
-    temps = total / count.clamp_min(1)
-    seen = count > 0
-    fill = temps[seen].median() if seen.any() else torch.tensor(0.5)
-    return torch.where(seen, temps, fill).clamp(0, 1)
 
 
 def initial_background(scene: Scene, modality: str) -> torch.Tensor:
@@ -134,8 +110,14 @@ class Trainer:
             pts, rgb = pts[keep], rgb[keep]
         temps = initial_temperatures(self.scene, pts) if "thermal" in self.cfg.model.modalities else None
         n_times = self.scene.steps_per_unit_time()
-        params = init_gaussians(pts, rgb, temps, self.cfg.model, self.cfg.routing, self.gen,
-                                trajectory_knots(self.cfg.model, n_times))
+        m = self.cfg.model
+        dynamic = changing_points(self.scene, pts, m.split_rgb, m.split_kelvin, m.split_fraction) \
+            if m.motion_split else None
+        if dynamic is not None:
+            self.log(f"static/dynamic split: {int(dynamic.sum())} of {len(pts)} initial points see a "
+                     f"changing scene and may move")
+        params = init_gaussians(pts, rgb, temps, m, self.cfg.routing, self.gen,
+                                trajectory_knots(m, n_times), dynamic)
         bgs = {m: initial_background(self.scene, m) for m in self.cfg.model.modalities}
         return DTGModel(self.cfg.model, params, n_times=n_times, backgrounds=bgs)
 
@@ -162,7 +144,7 @@ class Trainer:
 
     def _build_optimizer(self) -> torch.optim.Optimizer:
         groups = [{"params": [p], "name": k, "lr": self._base_lr(k), "base_lr": self._base_lr(k)}
-                  for k, p in self.model.gaussians.items()]
+                  for k, p in self.model.gaussians.items() if p.requires_grad]
         if self.cfg.model.deformation != "none":
             groups.append({"params": list(self.model.deformers.parameters()), "name": "deformation",
                            "lr": self.cfg.lr.deformation_scene[0] * self.extent})
@@ -295,7 +277,7 @@ class Trainer:
     def _motion_priors(self, g: dict, t: float, p: float, stats: dict):
         """The motion priors on the geometry g of the stage that moves every modality."""
         gs = self.model.gaussians
-        canonical = {"means": gs["means"], "quats": gs["quats"], "log_scales": gs["log_scales"]}
+        canonical = {k: gs[k] for k in ("means", "quats", "log_scales", "dynamic") if k in gs}
         stage = self.model.motion_stage()
         dt = 1.0 / max(self.model.n_times - 1, 1)
         if self.cfg.priors.static > 0 and "dynamic_logit" in gs:
@@ -394,6 +376,9 @@ class Trainer:
             return
         self._hold_over = True
         self.log(f"iteration {self.iteration}: {self.schedule.stop_reason}")
+        if self.schedule.stop_reason.startswith("converged") and self.strategy.growing:
+            self.strategy.growing = False     # held-out error gains nothing more: model no more
+            self.log(f"no more densification: {self.model.num_gaussians} Gaussians")
         if not self.cfg.densify.auto_stop:
             self.train_times = list(self.scene.times)
 

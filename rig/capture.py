@@ -446,7 +446,7 @@ def register(sub) -> None:
     p = sub.add_parser(
         "capture", help="record a session (simulated rig when no device is named)",
         description="Record thermal frames, phone videos and sync-box markers into a crash-safe\n"
-                    "session folder (see the README, 'Session folder').\n"
+                    "session folder (see docs/rig.md, 'Session folder').\n"
                     "With no --camera, --phone-drop or --syncbox the simulated rig is captured (thermal\n"
                     "camera, phone and sync-box lamp). With --phone-drop and/or --syncbox but no --camera,\n"
                     "those devices are recorded beside the simulated thermal camera (no simulated phone\n"

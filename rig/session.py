@@ -1,6 +1,6 @@
 """Crash-safe, append-only capture session folder: writer and reader.
 
-Layout (documented in the README, section "Session folder"):
+Layout (documented in docs/rig.md, section "Session folder"):
 
     SESSION/
       session.json              created once (atomic rename): format, host clock pair, devices
@@ -255,7 +255,7 @@ class Session:
     """Reader of a session folder, safe while the capture is still appending.
 
     `refresh()` picks up newly committed records; `thermal`/`rgb`/`events` are the records
-    known so far (dicts, see the README); `thermal_frame(i)`, `iter_thermal()`, `iter_rgb()`
+    known so far (dicts, see docs/rig.md); `thermal_frame(i)`, `iter_thermal()`, `iter_rgb()`
     load data; `follow()` yields frames as they are committed until the capture closes.
     """
 

@@ -30,9 +30,10 @@ def test_loaded_pixels_poses_and_intrinsics_equal_what_was_rendered(simulated):
     world = make_world(CFG.variant, CFG.seed)
     by_path = {f.file_path: f for f in ds.frames}
     for step in range(CFG.frames):
-        for frame, pixels in render_step(CFG, step):
+        for frame, pixels, labels in render_step(CFG, step):
             loaded = by_path[frame.file_path]
             np.testing.assert_array_equal(ds.read_raw(loaded), pixels)
+            np.testing.assert_array_equal(ds.mask(loaded), labels)
             np.testing.assert_array_equal(loaded.c2w, frame.c2w)
             assert (loaded.fx, loaded.fy, loaded.cx, loaded.cy) == (frame.fx, frame.fy, frame.cx, frame.cy)
             assert loaded.time == frame.time and loaded.timestamp_s == frame.timestamp_s

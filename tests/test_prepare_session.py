@@ -61,7 +61,7 @@ def test_dataset_loads_with_thermal_poses_from_the_rig(prepared, session):
 
 def test_recovered_poses_against_the_simulator(prepared, session):
     """Coarse on this 3 s test session (its keyframes are 0.2 s apart and blended: ghosted
-    views); the figures in the README come from bench/prepare_accuracy.py."""
+    views); the figures in docs/prepare.md come from bench/prepare_accuracy.py."""
     s = open_session(session)
     truth = session_truth(s)
     report = json.loads((prepared / REPORT_FILE).read_text())

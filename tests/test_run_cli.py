@@ -43,7 +43,7 @@ def test_run_writes_renders_metrics_exports(run):
         assert img.dtype == (np.uint8 if f.modality == "rgb" else np.uint16)
     summary = json.loads((out / "metrics.json").read_text())
     assert summary["iterations"] == 20
-    assert set(summary["metrics"]) == {"rgb", "thermal"}
+    assert set(summary["metrics"]) == {"rgb", "thermal", "regions"}
     assert summary["metrics"]["thermal"]["mae_k"] > 0
     assert sum(summary["gaussians_per_role"].values()) == summary["gaussians"]
     assert (out / "eval" / "metrics.md").exists() and (out / "animation.gif").exists()
@@ -126,3 +126,20 @@ def test_follow_on_a_session_that_never_prepares_is_a_message(textureless_sessio
 def test_bad_prepare_options_are_usage_errors(textureless_session, tmp_path, capsys):
     assert recon_main(["run", str(textureless_session), "--out", str(tmp_path / "c"), "--scale", "-1"]) == 2
     assert "scale must be positive" in capsys.readouterr().err and not (tmp_path / "c").exists()
+
+
+def test_by_default_the_scene_chooses_the_length_within_the_cap(tmp_path):
+    """No --iterations: training holds while held-out error (every 8th time step) improves, ends
+    within the --minutes cap, and says why it stopped."""
+    data = tmp_path / "data"
+    simulate_dataset(data, SimulateConfig(frames=16, width=40, height=30, seed=1, points=300))
+    res = recon("run", data, "--out", tmp_path / "run", "--minutes", 0.25, "--threads", 1)
+    summary = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert summary["train_seconds"] <= 0.25 * 60 + 2
+    reason = summary["stop_reason"]
+    assert reason.startswith(("converged", "time cap of 0.25 min")), reason
+    assert f"stopped: {reason}" in res.stdout
+    events = json.loads((tmp_path / "run" / "events.json").read_text())
+    assert events == {"stop_reason": reason, "events": []}
+    config = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert config["stop"]["converge"] and config["minutes"] == 0.25

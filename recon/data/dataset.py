@@ -27,7 +27,7 @@ class Dataset:
     def __init__(self, root: Path, frames: list[Frame], camera_model: str,
                  thermal_scale_k: float | None, thermal_range_k: tuple[float, float] | None,
                  points_xyz: np.ndarray | None, points_rgb: np.ndarray | None,
-                 cache_bytes: int = DEFAULT_CACHE_BYTES):
+                 cache_bytes: int = DEFAULT_CACHE_BYTES, mask_labels: dict[int, dict] | None = None):
         self.root = root
         self.frames = frames
         self.camera_model = camera_model
@@ -35,6 +35,7 @@ class Dataset:
         self.thermal_range_k = thermal_range_k
         self.points_xyz = points_xyz
         self.points_rgb = points_rgb
+        self.mask_labels = mask_labels or {}
         self._cache = ByteLRU(cache_bytes)
 
     def __len__(self) -> int:
@@ -58,6 +59,21 @@ class Dataset:
         else:
             img = images.decode_thermal(raw, self.thermal_scale_k)
         return images.undistort(img, frame.distortion) if frame.distortion else img
+
+    def mask(self, frame: Frame) -> np.ndarray | None:
+        """The frame's object labels, uint8 (H, W), read-only and cached; None without a mask."""
+        if frame.mask_path is None:
+            return None
+        return self._cache.get("mask:" + frame.mask_path, lambda: self._read_mask(frame))
+
+    def _read_mask(self, frame: Frame) -> np.ndarray:
+        path = self.root / frame.mask_path
+        labels = images.read_mask(path, frame.width, frame.height)
+        unknown = sorted(set(np.unique(labels).tolist()) - {0} - set(self.mask_labels)) if self.mask_labels else []
+        if unknown:
+            raise DatasetError(f"{path}: labels {unknown[:5]} are not in transforms.json mask_labels")
+        labels.flags.writeable = False
+        return labels
 
     def split(self, modality: str, split: str) -> list[Frame]:
         """Frames of one modality ('rgb' | 'thermal') and split ('train' | 'test'), file order."""
@@ -92,6 +108,8 @@ def load_dataset(path: str | Path, cache_bytes: int = DEFAULT_CACHE_BYTES) -> Da
     frames = []
     for frame in manifest.frames:
         images.check_header(root / frame.file_path, frame.modality, frame.width, frame.height)
+        if frame.mask_path is not None and not (root / frame.mask_path).is_file():
+            raise DatasetError(f"{root / frame.mask_path}: mask of {frame.file_path} missing")
         if frame.distortion is not None:
             fx, fy, cx, cy = images.undistorted_intrinsics(frame.distortion, frame.width, frame.height)
             frame = replace(frame, fx=fx, fy=fy, cx=cx, cy=cy)
@@ -101,4 +119,4 @@ def load_dataset(path: str | Path, cache_bytes: int = DEFAULT_CACHE_BYTES) -> Da
         raise DatasetError(f"{transforms}: ply_file_path {manifest.ply_file_path} does not exist")
     xyz, rgb = read_points_ply(ply) if ply.is_file() else (None, None)
     return Dataset(root, frames, manifest.camera_model, manifest.thermal_scale_k,
-                   manifest.thermal_range_k, xyz, rgb, cache_bytes)
+                   manifest.thermal_range_k, xyz, rgb, cache_bytes, manifest.mask_labels)

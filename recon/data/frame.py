@@ -70,6 +70,7 @@ class Frame:
     height: int
     split: str = "train"     # 'train' | 'test'
     distortion: Distortion | None = None
+    mask_path: str | None = None   # optional object-label image (8-bit PNG, 0 = no object)
 
     def viewmat(self) -> np.ndarray:
         """(4, 4) float32 world-to-camera in OpenCV axes (what the rasterizer takes)."""

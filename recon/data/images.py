@@ -79,6 +79,19 @@ def read_raw(path: Path) -> np.ndarray:
     return img
 
 
+def read_mask(path: Path, width: int, height: int) -> np.ndarray:
+    """An object-label image: uint8 (H, W), checked to be single-channel 8-bit and w x h."""
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise DatasetError(f"{path}: could not decode the mask image")
+    if img.ndim != 2 or img.dtype != np.uint8:
+        raise DatasetError(f"{path}: masks must be 8-bit single-channel PNG, got {img.dtype} "
+                           f"with shape {img.shape}")
+    if img.shape != (height, width):
+        raise DatasetError(f"{path}: mask is {img.shape[1]}x{img.shape[0]} but its frame is {width}x{height}")
+    return img
+
+
 def decode_rgb(raw: np.ndarray) -> np.ndarray:
     """uint8 (H, W, 3) -> float32 (H, W, 3) in [0, 1]."""
     return raw.astype(np.float32) / np.float32(255)

@@ -2,7 +2,8 @@
 
 Per time step and rig r (camera `cam{r}`): an RGB frame `rgb/{i:06d}_cam{r}.png` (phone noise)
 and a thermal frame `thermal/{i:06d}_cam{r}.png` (TemperatureLinear10mK counts with NETD noise)
-at the thermal camera's own pose and narrower intrinsics. Poses and intrinsics are exact. The
+at the thermal camera's own pose and narrower intrinsics, each with its object-label mask
+`masks/<modality>/{i:06d}_cam{r}.png` where the scene labels objects. Poses and intrinsics are exact. The
 noise of every frame is seeded by (seed, step, rig, modality), so the bytes depend on the seed
 only, never on the order or number of worker processes.
 """
@@ -46,8 +47,9 @@ def _world(variant: str, seed: int) -> World:
     return make_world(variant, seed)
 
 
-def render_step(cfg: SimulateConfig, step: int) -> list[tuple[Frame, np.ndarray]]:
-    """All frames of one time step: for each rig, (RGB frame, uint8 pixels) and (thermal, counts)."""
+def render_step(cfg: SimulateConfig, step: int) -> list[tuple[Frame, np.ndarray, np.ndarray | None]]:
+    """All frames of one time step: for each rig, (RGB frame, uint8 pixels, labels) and (thermal,
+    counts, labels); labels (uint8 object ids) are None for a scene without labelled objects."""
     world = _world(cfg.variant, cfg.seed)
     t = float(cfg.step_times(world.duration_s)[step])
     out = []
@@ -58,20 +60,17 @@ def render_step(cfg: SimulateConfig, step: int) -> list[tuple[Frame, np.ndarray]
                                     ("thermal", c2w_th, world.rig_config.thermal)):
             k = intr.scaled(cfg.width, cfg.height)
             rng = np.random.default_rng([cfg.seed, step, rig, modality == "thermal"])
-            args = (c2w, k.fx, k.fy, k.cx, k.cy, k.width, k.height, t)
-            if modality == "rgb":
-                pixels = world.render_rgb(*args, rng=rng)
-            else:
-                pixels = world.thermal_counts(world.render_temperature(*args), rng, THERMAL_SCALE_K)
+            pixels, labels = world.render_frame(modality, c2w, k.fx, k.fy, k.cx, k.cy, k.width, k.height,
+                                                t, rng, THERMAL_SCALE_K)
             frame = Frame(f"{modality}/{step:06d}_{camera}.png", modality, camera,
                           t / world.duration_s, t, c2w_opencv_to_opengl(c2w), k.fx, k.fy, k.cx,
                           k.cy, k.width, k.height, split="test" if rig == 1 else "train")
-            out.append((frame, pixels))
+            out.append((frame, pixels, labels if world.mask_labels() else None))
     return out
 
 
 def _steps(cfg: SimulateConfig, progress: Callable[[int, int], None] | None
-           ) -> Iterator[tuple[Frame, np.ndarray]]:
+           ) -> Iterator[tuple[Frame, np.ndarray, np.ndarray | None]]:
     steps = range(cfg.frames)
     if cfg.jobs > 1:
         pool = ProcessPoolExecutor(cfg.jobs)
@@ -118,4 +117,4 @@ def simulate_dataset(out_dir: str | Path, cfg: SimulateConfig,
     xyz, rgb = world.visible_points(list(times), per_view=-(-cfg.points // len(times)), rng=rng)
     return write_dataset(out_dir, _steps(cfg, progress), THERMAL_SCALE_K, world.temperature_range_k,
                          xyz[:cfg.points], rgb[:cfg.points], explicit_splits=cfg.explicit_splits,
-                         sidecars={SIDECAR: metadata(world, cfg)})
+                         sidecars={SIDECAR: metadata(world, cfg)}, mask_labels=world.mask_labels())

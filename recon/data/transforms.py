@@ -1,6 +1,6 @@
 """Parse and validate `transforms.json` of a prepared dataset (no image is read here).
 
-Rules beyond shared/FORMATS.md, all documented in the README:
+Rules beyond shared/FORMATS.md, all documented in docs/data.md:
 - intrinsics (`fl_x fl_y cx cy w h`) and distortion (`k1 k2 p1 p2`) may sit at the top level
   as nerfstudio allows; a frame's own keys win;
 - `thermal_scale_k` and `thermal_range_k` are required as soon as there is a thermal frame
@@ -8,7 +8,11 @@ Rules beyond shared/FORMATS.md, all documented in the README:
 - splits: `test_filenames` alone -> every other frame is train; `train_filenames` alone ->
   every other frame is test; neither -> frames of camera `cam1` are test;
 - a pose must be finite, have last row (0, 0, 0, 1) and a rotation with |R^T R - I| <= 1e-3
-  and det(R) > 0 (scaled or mirrored poses are rejected).
+  and det(R) > 0 (scaled or mirrored poses are rejected);
+- optional (an extension of FORMATS.md, no existing meaning changed): a frame's `mask_path`, an
+  8-bit single-channel PNG of object labels the frame's size (0 = no object), and top-level
+  `mask_labels` {"<label>": {"name": ..., "moving": true|false}} (without it every nonzero
+  label counts as moving). Evaluation grades moving / hot / static regions with them.
 """
 from __future__ import annotations
 
@@ -39,6 +43,7 @@ class Manifest:
     thermal_range_k: tuple[float, float] | None
     ply_file_path: str | None
     frames: list[Frame]
+    mask_labels: dict[int, dict]   # {label: {"name", "moving"}}; empty when not given
 
 
 def _number(value, where: str, what: str) -> float:
@@ -108,8 +113,28 @@ def _frame(raw, index: int, top: dict, camera_model: str, where_file: str) -> Fr
     if camera_model == "OPENCV" and any(values[k] != 0 for k in DISTORTION_KEYS):
         distortion = Distortion(values["fl_x"], values["fl_y"], values["cx"], values["cy"],
                                 *(values[k] for k in DISTORTION_KEYS))
+    mask_path = raw.get("mask_path")
+    if mask_path is not None and (not isinstance(mask_path, str) or not mask_path):
+        raise DatasetError(f"{where}: mask_path must be a relative file path")
     return Frame(file_path, modality, camera, time, timestamp, c2w, values["fl_x"], values["fl_y"],
-                 values["cx"], values["cy"], int(w), int(h), distortion=distortion)
+                 values["cx"], values["cy"], int(w), int(h), distortion=distortion, mask_path=mask_path)
+
+
+def _mask_labels(value, where: str) -> dict[int, dict]:
+    """{"3": {"name": "ball", "moving": true}, ...} -> {3: {...}}; labels 1..255."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise DatasetError(f"{where}: mask_labels must be an object mapping label ids to "
+                           f'{{"name": ..., "moving": true|false}}')
+    out = {}
+    for key, info in value.items():
+        if not str(key).isdigit() or not 1 <= int(key) <= 255:
+            raise DatasetError(f"{where}: mask_labels key {key!r} must be a label id 1..255")
+        if not isinstance(info, dict) or not isinstance(info.get("moving"), bool):
+            raise DatasetError(f"{where}: mask_labels[{key}] needs a boolean 'moving'")
+        out[int(key)] = {"name": str(info.get("name", f"object {key}")), "moving": info["moving"]}
+    return out
 
 
 def _assign_splits(frames: list[Frame], top: dict, where: str) -> list[Frame]:
@@ -179,4 +204,5 @@ def parse_transforms(path: Path) -> Manifest:
     ply = top.get("ply_file_path")
     if ply is not None and not isinstance(ply, str):
         raise DatasetError(f"{where}: ply_file_path must be a string")
-    return Manifest(path, camera_model, scale, span, ply, _assign_splits(frames, top, where))
+    return Manifest(path, camera_model, scale, span, ply, _assign_splits(frames, top, where),
+                    _mask_labels(top.get("mask_labels"), where))

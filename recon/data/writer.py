@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import replace
 from pathlib import Path
 from typing import Iterable
 
@@ -39,6 +40,15 @@ def _write_image(path: Path, frame: Frame, pixels: np.ndarray) -> None:
         raise OSError(f"{path}: could not write image")
 
 
+def _write_mask(path: Path, labels: np.ndarray, frame: Frame) -> None:
+    if labels.shape != (frame.height, frame.width) or labels.dtype != np.uint8:
+        raise ValueError(f"{frame.file_path}: a mask must be uint8 {(frame.height, frame.width)}, "
+                         f"got {labels.dtype} {labels.shape}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), labels, [cv2.IMWRITE_PNG_COMPRESSION, 3]):
+        raise OSError(f"{path}: could not write mask")
+
+
 def frame_entry(frame: Frame) -> dict:
     """The transforms.json object of one frame."""
     entry = {"file_path": frame.file_path, "modality": frame.modality, "camera": frame.camera,
@@ -52,27 +62,40 @@ def frame_entry(frame: Frame) -> dict:
                   "w": int(frame.width), "h": int(frame.height)})
     if d:
         entry.update({"k1": d.k1, "k2": d.k2, "p1": d.p1, "p2": d.p2})
+    if frame.mask_path is not None:
+        entry["mask_path"] = frame.mask_path
     return entry
+
+
+def mask_path_of(frame: Frame) -> str:
+    """Where a frame's object-label mask goes: masks/<modality>/<stem>.png."""
+    return f"masks/{frame.modality}/{Path(frame.file_path).stem}.png"
 
 
 def write_dataset(out_dir: str | Path, frames: Iterable[tuple[Frame, np.ndarray]],
                   thermal_scale_k: float | None = None,
                   thermal_range_k: tuple[float, float] | None = None,
                   points_xyz: np.ndarray | None = None, points_rgb: np.ndarray | None = None,
-                  explicit_splits: bool = False, sidecars: dict[str, dict] | None = None) -> Path:
+                  explicit_splits: bool = False, sidecars: dict[str, dict] | None = None,
+                  mask_labels: dict[int, dict] | None = None) -> Path:
     """Write images, optional points3d.ply, JSON sidecars, then transforms.json; returns its path.
 
-    frames: (Frame, pixels) pairs; pixels are uint8 (H, W, 3) RGB or uint16 (H, W) thermal
-    counts in `thermal_scale_k`; a frame's `distortion` (stored lens) makes the camera model
-    OPENCV. With explicit_splits, train/test_filenames are written from `Frame.split`;
-    otherwise readers apply the default rule (camera cam1 is test).
+    frames: (Frame, pixels) pairs or (Frame, pixels, labels) triples; pixels are uint8 (H, W, 3)
+    RGB or uint16 (H, W) thermal counts in `thermal_scale_k`; labels, uint8 (H, W) object ids,
+    are written as the frame's mask (mask_path) and mask_labels {id: {"name", "moving"}} named
+    in transforms.json. A frame's `distortion` (stored lens) makes the camera model OPENCV. With
+    explicit_splits, train/test_filenames are written from `Frame.split`; otherwise readers
+    apply the default rule (camera cam1 is test).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     entries, splits, distorted = [], {"train": [], "test": []}, False
-    for frame, pixels in frames:
+    for frame, pixels, *labels in frames:
         _check_pixels(frame, pixels)
         _write_image(out / frame.file_path, frame, pixels)
+        if labels and labels[0] is not None:
+            frame = replace(frame, mask_path=mask_path_of(frame))
+            _write_mask(out / frame.mask_path, labels[0], frame)
         entries.append(frame_entry(frame))
         splits[frame.split].append(frame.file_path)
         distorted |= frame.distortion is not None
@@ -85,6 +108,8 @@ def write_dataset(out_dir: str | Path, frames: Iterable[tuple[Frame, np.ndarray]
     if points_xyz is not None:
         write_points_ply(out / POINTS_FILE, points_xyz, points_rgb)
         doc["ply_file_path"] = POINTS_FILE
+    if mask_labels:
+        doc["mask_labels"] = {str(k): v for k, v in sorted(mask_labels.items())}
     if explicit_splits:
         doc["train_filenames"], doc["test_filenames"] = splits["train"], splits["test"]
     doc["frames"] = entries

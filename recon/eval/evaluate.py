@@ -22,17 +22,43 @@ from recon.eval.lpips import MIN_SIDE as LPIPS_MIN_SIDE
 from recon.eval.lpips import Lpips
 from recon.eval.metrics import psnr, ssim, thermal_mae_k
 from recon.viz import rgb_strip, save_png, thermal_strip
+from recon.eval.regions import RegionPool, changing_pixels, frame_regions, moving_from_labels
 from recon.eval.renders import RenderError, find_render, read_render, render_path
 
 METRICS = {"rgb": ("psnr", "ssim", "lpips"), "thermal": ("psnr", "ssim", "lpips", "mae_k")}
+MAX_MEDIAN_FRAMES = 64      # frames in a still camera's temporal median (memory)
+REGIONS_CONVENTION = ("moving: object masks (mask_labels marks which labels move) or, for a still camera, "
+                      "pixels that change over the sequence; hot: >= the frame's median temperature + 10 K; "
+                      "moving_hot: both; static: not moving. Pixels pooled over frames: thermal MAE and 95th "
+                      "percentile in kelvin, RGB PSNR of the pooled squared error.")
 
 
 def _normalise(kelvin: np.ndarray, span: tuple[float, float]) -> np.ndarray:
     return np.clip((kelvin - span[0]) / (span[1] - span[0]), 0, 1)
 
 
-def frame_metrics(ds: Dataset, frame: Frame, render: np.ndarray, lpips: Lpips | None) -> dict:
-    """Metrics of one frame given the render's stored pixels (uint8 RGB or uint16 counts)."""
+def moving_masks(ds: Dataset, frames: list[Frame]) -> dict[str, np.ndarray | None]:
+    """Moving-object pixels (H, W) bool of each frame, by file_path: from its mask, or for a
+    camera that never moves from where its ground truth changes, else None (regions.py)."""
+    out: dict[str, np.ndarray | None] = {}
+    for f in frames:
+        out[f.file_path] = None if f.mask_path is None else moving_from_labels(ds.mask(f), ds.mask_labels)
+    unmasked = [f for f in frames if f.mask_path is None]
+    for key in sorted({(f.camera, f.modality) for f in unmasked}):
+        group = [f for f in ds.frames if (f.camera, f.modality) == key]
+        if len(group) < 3 or not all(np.allclose(f.c2w, group[0].c2w, atol=1e-6) for f in group):
+            continue                      # a moving camera: what changes is not known without masks
+        picks = group[:: max(1, len(group) // MAX_MEDIAN_FRAMES)]
+        reference = [ds.image(f) for f in picks]
+        for f in (f for f in unmasked if (f.camera, f.modality) == key):
+            out[f.file_path] = changing_pixels(reference + [ds.image(f)], f.modality)[-1]
+    return out
+
+
+def frame_metrics(ds: Dataset, frame: Frame, render: np.ndarray, lpips: Lpips | None,
+                  pool: RegionPool | None = None, moving: np.ndarray | None = None) -> dict:
+    """Metrics of one frame given the render's stored pixels (uint8 RGB or uint16 counts); with
+    a pool, also its region metrics (added to the pool, and to the result under "regions")."""
     gt = ds.image(frame)
     if frame.modality == "rgb":
         a, b, valid = render.astype(np.float32) / 255, gt, None
@@ -49,6 +75,10 @@ def frame_metrics(ds: Dataset, frame: Frame, render: np.ndarray, lpips: Lpips | 
         out["lpips"] = float(lpips(rgb_a, rgb_b))
     if frame.modality == "thermal":
         out["mae_k"] = float(thermal_mae_k(pred_k, gt, valid))
+    if pool is not None:
+        error = np.abs(pred_k - gt) if frame.modality == "thermal" else (a - np.asarray(b)) ** 2
+        regions = frame_regions(frame.modality, np.asarray(gt), valid, moving)
+        out["regions"] = pool.add(frame.modality, regions, np.nan_to_num(error))
     return out
 
 
@@ -75,10 +105,10 @@ def evaluate_run(run_dir: str | Path, dataset_dir: str | Path, split: str = "tes
         lpips_note = f"omitted: frames smaller than {LPIPS_MIN_SIDE} px (AlexNet's receptive field)"
     elif Lpips.available():
         lpips, lpips_note = Lpips(), LPIPS_CONVENTION
-    per_frame = []
+    per_frame, pool, moving = [], RegionPool(), moving_masks(ds, frames)
     with torch.no_grad():
         for i, frame in enumerate(frames):
-            values = frame_metrics(ds, frame, read_render(run_dir, frame), lpips)
+            values = frame_metrics(ds, frame, read_render(run_dir, frame), lpips, pool, moving[frame.file_path])
             per_frame.append({"file_path": frame.file_path, "modality": frame.modality,
                               "camera": frame.camera, "time": frame.time, **values})
             if progress:
@@ -97,8 +127,12 @@ def evaluate_run(run_dir: str | Path, dataset_dir: str | Path, split: str = "tes
                        f"{list(ds.thermal_range_k or [])} and clipped to [0, 1]; MAE in kelvin "
                        f"over pixels with a measurement",
             "lpips": lpips_note,
+            "regions": REGIONS_CONVENTION + ("" if all(v is not None for v in moving.values()) else
+                                             " Some frames have no masks and a moving camera: their "
+                                             "moving and static regions are unknown (null)."),
         },
         "mean": means,
+        "regions": pool.result(),
         "per_frame": per_frame,
     }
 
@@ -124,6 +158,21 @@ def _fmt(value: float | None, digits: int) -> str:
     return "inf" if math.isinf(value) else f"{value:.{digits}f}"
 
 
+def region_table(regions: dict) -> list[str]:
+    """Markdown lines: one row per modality and region (unknown regions say so)."""
+    if not regions:
+        return []
+    lines = ["", "| modality | region | pixels | MAE (K) | p95 (K) | PSNR (dB) |", "|---|---|---|---|---|---|"]
+    for modality, by_region in regions.items():
+        for name, m in by_region.items():
+            if m is None:
+                lines.append(f"| {modality} | {name} | unknown | – | – | – |")
+                continue
+            lines.append(f"| {modality} | {name} | {m['pixels']} | {_fmt(m.get('mae_k'), 3)} | "
+                         f"{_fmt(m.get('p95_k'), 2)} | {_fmt(m.get('psnr'), 2)} |")
+    return lines
+
+
 def markdown_table(result: dict) -> str:
     """Mean table per modality, then every frame."""
     cols = [("psnr", "PSNR (dB)", 2), ("ssim", "SSIM", 4), ("lpips", "LPIPS", 4), ("mae_k", "MAE (K)", 3)]
@@ -133,6 +182,7 @@ def markdown_table(result: dict) -> str:
     for modality, m in result["mean"].items():
         lines.append(f"| {modality} | {m['frames']} | "
                      + " | ".join(_fmt(m.get(k), d) for k, _, d in cols) + " |")
+    lines += region_table(result.get("regions", {}))
     lines += ["", *(f"- {k}: {v}" for k, v in result["conventions"].items()), "",
               "| frame | modality | time | " + " | ".join(c[1] for c in cols) + " |",
               "|---|---|---|" + "---|" * len(cols)]

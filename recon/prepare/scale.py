@@ -17,7 +17,7 @@ Otherwise the scale is unknown and `recon prepare` refuses, saying what to recap
 (Thermal multi-view consistency was tried and dropped: a scale error shifts every thermal view
 along the baseline, which is fixed in the camera frame, so views taken close in time sample
 nearly the same wrong surface point; on a simulated session the cost curve was flat to
-+-15 %, see the README.)
++-15 %, see docs/prepare.md.)
 """
 from __future__ import annotations
 

@@ -138,3 +138,17 @@ def shade_rgb(hits: Hits, instances: list[Instance], lights: list[tuple[np.ndarr
             irradiance += np.float32(strength) * np.maximum(n_world @ direction.astype(np.float32), 0)
         out[idx] = inst.albedo(p, n) * irradiance[:, None]
     return out.reshape(*hits.ids.shape, 3)
+
+
+def label_image(hits: Hits, instances: list[Instance], ss: int) -> np.ndarray:
+    """Object labels (H, W) uint8: per pixel the label covering most of its ss x ss samples (a
+    tie goes to an object over no object). Rays that hit nothing are label 0."""
+    labels = np.array([inst.label for inst in instances] + [0], np.int32)
+    per_sample = labels[hits.ids.astype(np.int32)]            # id -1 -> the trailing 0
+    h, w = per_sample.shape[0] // ss, per_sample.shape[1] // ss
+    blocks = per_sample.reshape(h, ss, w, ss)
+    present = np.unique(per_sample)
+    if len(present) == 1:
+        return np.full((h, w), present[0], np.uint8)
+    counts = np.stack([(blocks == lab).sum(axis=(1, 3)) + 0.5 * (lab > 0) for lab in present], -1)
+    return present[counts.argmax(-1)].astype(np.uint8)

@@ -70,6 +70,11 @@ TARGET_XY, TARGET_YAW = np.array([-0.075, 0.21]), 0.0   # printed checkerboard (
 ROOM_HALF, ROOM_CENTER = (2.5, 2.5, 1.4), np.array([0.0, 0.0, 0.65])
 
 
+# Object labels in mask images (0: table, room): name -> id; MOVING: the ones that move.
+LABELS = {"hot plate": 1, "mug": 2, "ice pack": 3, "ball": 4, "stream": 5, "arm": 6, "printed target": 7}
+MOVING = {"ice pack", "ball", "stream", "arm"}
+
+
 @lru_cache(maxsize=4)
 def _textures(seed: int) -> tuple[dict[str, Texture], Texture]:
     """All surface textures of a seed (about 0.4 s to make, so worlds of one seed share them)."""
@@ -113,6 +118,12 @@ class TableTopScene:
     def build(cls, variant: str, seed: int) -> "TableTopScene":
         textures, heat_noise = _textures(seed)
         return cls(VARIANT_SETTINGS[variant], textures, heat_noise)
+
+    def mask_labels(self) -> dict[int, dict]:
+        """{label: {"name", "moving"}} of the objects this variant has."""
+        names = [n for n in LABELS if n != "arm" or self.settings.occluder]
+        names = [n for n in names if n != "printed target" or self.settings.printed_target]
+        return {LABELS[n]: {"name": n, "moving": n in MOVING} for n in names}
 
     # ---------------------------------------------------------------- temperature laws (kelvin)
     def _contrast(self, kelvin: np.ndarray | float) -> np.ndarray | float:
@@ -186,11 +197,11 @@ class TableTopScene:
                      lambda p, n: tex["ice"].sample(Box(ICE_HALF).uv(p, n)),
                      lambda p: contrast(C0 + 9.0 + 5.0 * (1 - np.exp(-t / 20.0))
                                         + 1.5 * np.abs(p[:, 0]) / ICE_HALF[0]
-                                        ).astype(np.float32)),
+                                        ).astype(np.float32), label=LABELS["ice pack"]),
             Instance("ball", Sphere(BALL_R), ball_r, ball_p,
                      lambda p, n: tex["ball"].sample(Sphere(BALL_R).uv(p, n)),
                      lambda p: contrast(C0 + 37.0 - 2.5 * t / DURATION_S
-                                        - 1.0 * p[:, 2] / BALL_R).astype(np.float32)),
+                                        - 1.0 * p[:, 2] / BALL_R).astype(np.float32), label=LABELS["ball"]),
         ]
         radius = self.stream_radius(t)
         if radius > 1e-4:
@@ -218,7 +229,8 @@ class TableTopScene:
             return out
 
         return Instance("printed target", shape, rotation("z", TARGET_YAW), np.array([*TARGET_XY, half[2]]),
-                        face, lambda p: np.full(len(p), AMBIENT_K - 0.3, np.float32))
+                        face, lambda p: np.full(len(p), AMBIENT_K - 0.3, np.float32),
+                        label=LABELS["printed target"])
 
     def _table(self, t, plate_k, water_k, ice_p, ball_p) -> Instance:
         tex, half = self.textures["table"], TABLE_HALF
@@ -277,7 +289,7 @@ class TableTopScene:
             return self._contrast(kelvin).astype(np.float32)
 
         return Instance("hot plate", Cylinder(PLATE_R, PLATE_H), np.eye(3),
-                        np.array([*PLATE_XY, 0.0]), albedo, temperature)
+                        np.array([*PLATE_XY, 0.0]), albedo, temperature, label=LABELS["hot plate"])
 
     def _mug(self, water_k: float) -> Instance:
         tex, coffee = self.textures["mug"], self.textures["coffee"]
@@ -296,7 +308,8 @@ class TableTopScene:
             liquid = water_k - 2.0 * r ** 2
             return self._contrast(np.where(top, liquid, wall)).astype(np.float32)
 
-        return Instance("mug", shape, np.eye(3), np.array([*MUG_XY, 0.0]), albedo, temperature)
+        return Instance("mug", shape, np.eye(3), np.array([*MUG_XY, 0.0]), albedo, temperature,
+                        label=LABELS["mug"])
 
     def _stream(self, t: float, radius: float) -> Instance:
         water = self.textures["water"]
@@ -308,7 +321,7 @@ class TableTopScene:
 
         return Instance("stream", shape, np.eye(3), np.array([*MUG_XY, MUG_H]), albedo,
                         lambda p: self._contrast(C0 + 92.0 + 4.0 * p[:, 2] / shape.height
-                                                 ).astype(np.float32))
+                                                 ).astype(np.float32), label=LABELS["stream"])
 
     def _arm(self, t: float, tip_x: float) -> Instance:
         length = 0.7
@@ -323,5 +336,5 @@ class TableTopScene:
                                   ).astype(np.float32)
 
         return Instance("arm", shape, to_tip, position,
-                        lambda p, n: skin.sample(shape.uv(p, n)), temperature)
+                        lambda p, n: skin.sample(shape.uv(p, n)), temperature, label=LABELS["arm"])
 

@@ -70,12 +70,18 @@ class World:
         c2w = np.asarray(c2w, np.float64)
         return instances, raycast.cast(instances, c2w, fx, fy, cx, cy, int(width), int(height), ss)
 
+    @staticmethod
+    def _radiance(instances, hits, ss: int) -> np.ndarray:
+        return box_downsample(raycast.shade_rgb(hits, instances, [KEY_LIGHT, FILL_LIGHT], AMBIENT_LIGHT), ss)
+
+    @staticmethod
+    def _kelvin(instances, hits, ss: int) -> np.ndarray:
+        return box_downsample(raycast.shade_temperature(hits, instances, AMBIENT_K), ss)
+
     def render_linear_rgb(self, c2w, fx, fy, cx, cy, width, height, time_s) -> np.ndarray:
         """Noise-free, anti-aliased linear radiance (H, W, 3) float64 before the phone sensor."""
         ss = supersampling(width, height)
-        instances, hits = self._cast(c2w, fx, fy, cx, cy, width, height, time_s, ss)
-        radiance = raycast.shade_rgb(hits, instances, [KEY_LIGHT, FILL_LIGHT], AMBIENT_LIGHT)
-        return box_downsample(radiance, ss)
+        return self._radiance(*self._cast(c2w, fx, fy, cx, cy, width, height, time_s, ss), ss)
 
     def render_rgb(self, c2w, fx, fy, cx, cy, width, height, time_s,
                    rng: np.random.Generator | None = None) -> np.ndarray:
@@ -86,8 +92,25 @@ class World:
     def render_temperature(self, c2w, fx, fy, cx, cy, width, height, time_s) -> np.ndarray:
         """Noise-free, anti-aliased surface temperature (H, W) float64 kelvin."""
         ss = supersampling(width, height)
+        return self._kelvin(*self._cast(c2w, fx, fy, cx, cy, width, height, time_s, ss), ss)
+
+    def render_frame(self, modality: str, c2w, fx, fy, cx, cy, width, height, time_s,
+                     rng: np.random.Generator | None, scale_k: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
+        """What a sensor records plus the object labels, from one ray cast: (uint8 (H, W, 3) sRGB
+        or uint16 (H, W) thermal counts, uint8 (H, W) labels; see raycast.label_image)."""
+        ss = supersampling(width, height)
         instances, hits = self._cast(c2w, fx, fy, cx, cy, width, height, time_s, ss)
-        return box_downsample(raycast.shade_temperature(hits, instances, AMBIENT_K), ss)
+        if modality == "rgb":
+            pixels = sensors.phone_rgb(self._radiance(instances, hits, ss), self.settings.light,
+                                       self.settings.gain, rng)
+        else:
+            pixels = self.thermal_counts(self._kelvin(instances, hits, ss), rng, scale_k)
+        return pixels, raycast.label_image(hits, instances, ss)
+
+    def mask_labels(self) -> dict[int, dict]:
+        """{label: {"name", "moving"}} of the scene's objects (empty for a scene without them)."""
+        labels = getattr(self.scene, "mask_labels", None)
+        return labels() if labels else {}
 
     def render_depth(self, c2w, fx, fy, cx, cy, width, height, time_s) -> np.ndarray:
         """Camera z-depth (H, W) float64 metres at pixel centres (no anti-aliasing)."""

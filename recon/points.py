@@ -1,0 +1,88 @@
+"""What the initial points tell before training: each point's temperature, and whether the scene
+changes there.
+
+Both come from sampling the training images where a point projects (nearest pixel). For the
+change test a point counts only in views where no other initial point lies in front of it (a
+z-buffer of the points), so the back of a static box does not read as changing; a point behind
+a passing object still does: it may move, and the motion priors keep it in place if it need not.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from recon.scene import Scene, View
+
+
+def point_depth_buffer(u: torch.Tensor, v: torch.Tensor, z: torch.Tensor, ok: torch.Tensor,
+                       width: int, height: int, radius: int) -> torch.Tensor:
+    """Nearest depth (H, W) of points drawn as (2 radius + 1)^2 pixel squares (inf where none)."""
+    zbuf = torch.full((height * width,), torch.inf)
+    for du in range(-radius, radius + 1):
+        for dv in range(-radius, radius + 1):
+            uu, vv = u + du, v + dv
+            keep = ok & (uu >= 0) & (uu < width) & (vv >= 0) & (vv < height)
+            zbuf.scatter_reduce_(0, (vv * width + uu)[keep], z[keep], reduce="amin")
+    return zbuf.view(height, width)
+
+
+def sample_views(scene: Scene, views: list[View], points: torch.Tensor, occlusion_radius: int = 0,
+                 occlusion_tolerance: float = 0.05) -> tuple[torch.Tensor, torch.Tensor]:
+    """What each view sees where each point projects. points: (M, 3) ->
+    (values (V, M, C): RGB in [0, 1] or normalised temperature (C = 1), seen (V, M) bool).
+    occlusion_radius > 0: a point counts as seen only if no other point lies in front of it
+    (depth more than `occlusion_tolerance` relatively smaller) within that many pixels."""
+    values, seen = [], []
+    for view in views:
+        target, valid = scene.target(view)
+        target = target if target.dim() == 3 else target[..., None]
+        cam = view.camera
+        pc = points @ cam.viewmat[:3, :3].T + cam.viewmat[:3, 3]
+        z = pc[:, 2]
+        u = (cam.fx * pc[:, 0] / z.clamp_min(1e-6) + cam.cx).floor().long()
+        v = (cam.fy * pc[:, 1] / z.clamp_min(1e-6) + cam.cy).floor().long()
+        ok = (z > 1e-3) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+        uu, vv = u.clamp(0, cam.width - 1), v.clamp(0, cam.height - 1)
+        if valid is not None:
+            ok &= valid[vv, uu]
+        if occlusion_radius > 0:
+            zbuf = point_depth_buffer(u, v, z, ok, cam.width, cam.height, occlusion_radius)
+            ok &= z <= zbuf[vv, uu] * (1 + occlusion_tolerance)
+        values.append(target[vv, uu])
+        seen.append(ok)
+    return torch.stack(values), torch.stack(seen)
+
+
+def initial_temperatures(scene: Scene, points: torch.Tensor, max_views: int = 6) -> torch.Tensor | None:
+    """Normalised temperature of each point, averaged over a few thermal training views that see it.
+    Points no view sees get the median. -> (M,) or None."""
+    views = scene.train["thermal"]
+    if not views:
+        return None
+    picks = [views[i] for i in np.linspace(0, len(views) - 1, min(max_views, len(views))).round().astype(int)]
+    values, seen = sample_views(scene, picks, points)
+    count = seen.sum(0)
+    temps = (values[..., 0] * seen).sum(0) / count.clamp_min(1)
+    fill = temps[count > 0].median() if (count > 0).any() else torch.tensor(0.5)
+    return torch.where(count > 0, temps, fill).clamp(0, 1)
+
+
+def changing_points(scene: Scene, points: torch.Tensor, rgb_change: float, kelvin_change: float,
+                    fraction: float) -> torch.Tensor:
+    """(M,) bool: points where the training views see the scene change over time: in more than
+    `fraction` of the views that see a point, its RGB differs from the point's median colour by
+    more than `rgb_change` (max over channels) or its temperature from its median by more than
+    `kelvin_change` kelvin. A static surface reads the same from every view (Lambertian colour, a
+    slowly changing temperature); a point on a moving object's path does not."""
+    changing = torch.zeros(len(points), dtype=torch.bool)
+    span = scene.k_max - scene.k_min
+    for modality, limit in (("rgb", rgb_change), ("thermal", kelvin_change / span)):
+        views = scene.train[modality]
+        if not views:
+            continue
+        values, seen = sample_views(scene, views, points, occlusion_radius=2)
+        masked = torch.where(seen[..., None], values, torch.nan)
+        median = masked.nanmedian(dim=0).values                       # (M, C)
+        off = ((values - median).abs().amax(-1) > limit) & seen        # (V, M)
+        changing |= off.sum(0) > fraction * seen.sum(0).clamp_min(1)
+    return changing
