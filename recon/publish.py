@@ -9,8 +9,11 @@ The trainer writes, the server only reads. Contract, ``RUN/live/`` (format "ther
                      its (iterations/s, recent), elapsed_s (training time),
                      losses {modality: float}, psnr {modality: held-out dB}, gaussians,
                      roles {shared, rgb, thermal} (Gaussians per routing role), time_steps,
-                     latest_time, unix (time.time() of the write), wall_s (s since the publisher
-                     started), pid. Missing values are absent or null, never NaN.
+                     latest_time, events (divergences: [{iteration, reason, rolled_back_to,
+                     lr_scale}]), schedule (what a converging run's schedule is doing, or null),
+                     stop_reason (once done or failed), unix (time.time() of the write), wall_s
+                     (s since the publisher started), pid. Missing values are absent or null,
+                     never NaN.
   metrics.jsonl      history, one JSON object per line: unix, wall_s, iteration, elapsed_s,
                      progress, gaussians, roles, its, loss_<modality> (mean over the iterations
                      since the previous line), psnr_<modality> (only on lines where it was measured).
@@ -305,8 +308,21 @@ class TrainingFeed:
             "progress": round(trainer.progress(), 5), "its": self._its, "elapsed_s": round(trainer.elapsed, 3),
             "losses": {k[5:]: v for k, v in self._losses.items()}, "psnr": self._psnr,
             "gaussians": trainer.model.num_gaussians, "roles": trainer.counts(),
-            "time_steps": len(times), "latest_time": max(times) if times else None})
+            "time_steps": len(times), "latest_time": max(times) if times else None,
+            "events": list(getattr(trainer, "events", [])),
+            "stop_reason": trainer.stop_reason() if state in ("done", "failed") and not scheduled else None,
+            "schedule": self._schedule_note(trainer)})
         self._schedule("status")
+
+    @staticmethod
+    def _schedule_note(trainer) -> str | None:
+        """'holding: held-out still improving' while a converging run's schedule holds."""
+        sched = getattr(trainer, "schedule", None)
+        if sched is None or not sched.converge or getattr(trainer, "progress_fn", None) is not None:
+            return None
+        if sched.holding and not sched.released:
+            return f"holding while held-out PSNR improves (best {sched.best:.2f} dB)"
+        return sched.stop_reason
 
     def ring_times(self, trainer) -> list[float]:
         times = trainer.scene.times

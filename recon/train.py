@@ -440,7 +440,14 @@ class Trainer:
         """One iteration plus, when due, held-out evaluation (on_eval(trainer, record) is called
         with each history record), the progress line and a checkpoint."""
         t0 = time.perf_counter()
-        stats = self.step()
+        try:
+            stats = self.step()
+        except ValueError:                   # the rasterizer refuses non-finite Gaussians
+            bad = nonfinite_parameter(self.model)
+            if bad is None:
+                raise
+            self._rollback(f"parameter {bad} is not finite")
+            return {}
         self._window = (getattr(self, "_window", []) + [time.perf_counter() - t0])[-50:]
         self._last = {**getattr(self, "_last", {}), **{k: v for k, v in stats.items() if k.startswith("loss_")}}
         it = self.iteration

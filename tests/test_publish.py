@@ -183,3 +183,23 @@ def test_status_of_live_training_has_no_fixed_budget(scene, tmp_path):
     feed.publish_status(tr)
     status = json.loads((tmp_path / "live" / "status.json").read_text())
     assert status["iterations"] is None and status["minutes"] is None and status["progress"] == 0.25
+
+
+def test_status_carries_divergences_and_why_training_stopped(scene, tmp_path):
+    tr = trainer(scene, iterations=40)
+    tr.cfg.eval_every = 20
+    feed = TrainingFeed(LivePublisher(tmp_path))
+    while tr.iteration < 21:
+        tr.tick()
+    with torch.no_grad():                    # a blow-up the guard must notice
+        tr.model.gaussians["means"].fill_(float("nan"))
+    tr.tick()
+    feed.publish_status(tr)
+    status = json.loads((tmp_path / "live" / "status.json").read_text())
+    assert status["events"] == tr.events and status["events"][0]["rolled_back_to"] == 20
+    assert "not finite" in status["events"][0]["reason"] or "nan" in status["events"][0]["reason"]
+    while not tr.done():
+        tr.tick()
+    feed.finish(tr)
+    status = json.loads((tmp_path / "live" / "status.json").read_text())
+    assert status["stop_reason"] == "budget of 40 iterations reached"
