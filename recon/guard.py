@@ -5,7 +5,9 @@ A run is watched for three signs of a blow-up:
 - training loss far above where it was: the median of the last ``patience`` iterations above
   ``factor`` x the median of the ``window`` iterations before them (one bad view is noise; a run
   of them is not);
-- held-out PSNR collapsing: ``holdout_drop_db`` below the best seen so far.
+- held-out PSNR collapsing: ``holdout_drop_db`` below the best seen so far;
+- the deformation drifting: the median Gaussian moved more than ``max_median_motion`` scene
+  extents (the loss can look healthy while the whole model slides off and back).
 
 The trainer keeps an in-memory snapshot of the last state that passed these checks. On a blow-up
 it rolls back to it with every learning rate multiplied by ``lr_factor``, logs the event (run log,
@@ -97,6 +99,15 @@ class DivergenceGuard:
                 return f"held-out {m} PSNR fell to {v:.2f} dB from its best {best:.2f} dB"
         for m, v in scores.items():
             self.best_holdout[m] = max(self.best_holdout.get(m, -math.inf), v)
+        return None
+
+    def check_motion(self, median_motion: float | None) -> str | None:
+        """A reason if the deformation moves the median Gaussian too far, else None."""
+        if not self.cfg.enabled or median_motion is None:
+            return None
+        if not math.isfinite(median_motion) or median_motion > self.cfg.max_median_motion:
+            return (f"the deformation moves the median Gaussian {median_motion:.3g} scene extents "
+                    f"(limit {self.cfg.max_median_motion:g}): the model drifted")
         return None
 
 

@@ -248,6 +248,9 @@ class Trainer:
     def _update_lrs(self, p: float) -> None:
         lr = self.cfg.lr
         routing_scale = max(1.0, self.cfg.routing.lr_reference_iterations / max(self.expected_iterations(), 1.0))
+        # the ramp takes at most a tenth of a short run
+        ramp = min(lr.deformation_warmup, 0.1 * self.expected_iterations())
+        warm = min(1.0, (self.iteration + 1) / ramp) if ramp >= 1 else 1.0
         for group in self.optimizer.param_groups:
             if group["name"] == "route_logits":
                 value = self.cfg.routing.lr * routing_scale
@@ -256,9 +259,9 @@ class Trainer:
             elif group["name"] == "trajectory":
                 value = log_lerp(*lr.trajectory_scene, p) * self.extent
             elif group["name"] == "deformation":
-                value = log_lerp(*lr.deformation_scene, p) * self.extent
+                value = log_lerp(*lr.deformation_scene, p) * self.extent * warm
             elif group["name"] == "time_embedding":
-                value = log_lerp(*lr.time_embedding, p)
+                value = log_lerp(*lr.time_embedding, p) * warm
             else:
                 value = group["base_lr"]
             group["lr"] = value * self.lr_scale
@@ -439,6 +442,8 @@ class Trainer:
     def tick(self, on_eval=None) -> dict:
         """One iteration plus, when due, held-out evaluation (on_eval(trainer, record) is called
         with each history record), the progress line and a checkpoint."""
+        if self._snapshot is None:
+            self._take_snapshot()            # the state to return to if the first steps blow up
         t0 = time.perf_counter()
         try:
             stats = self.step()
@@ -461,6 +466,7 @@ class Trainer:
         if it % self.cfg.eval_every == 0 or self.done():
             scores = self.holdout_psnr()
             blow_up = self.guard.check_holdout(scores) if self.validation_times else None
+            blow_up = blow_up or self.guard.check_motion(self.median_motion())
             if blow_up:
                 self._rollback(blow_up)
                 return stats
@@ -504,6 +510,21 @@ class Trainer:
         sys.stderr.flush()
 
     # ------------------------------------------------------------------ divergence
+    @torch.no_grad()
+    def median_motion(self, sample: int = 4096, times: int = 5) -> float | None:
+        """The median over (a sample of) Gaussians of their largest displacement from the canonical
+        position over time, in scene extents; None for a static model."""
+        stage = self.model.motion_stage()
+        n = self.model.num_gaussians
+        if stage is None or n == 0:
+            return None
+        idx = torch.randperm(n, generator=torch.Generator().manual_seed(self.iteration))[:sample]
+        mu = self.model.gaussians["means"][idx]
+        p = self.progress()
+        moved = torch.stack([(self.model.means_at(stage, float(t), p, idx) - mu).norm(dim=1)
+                             for t in torch.linspace(0, 1, times)])
+        return float(moved.max(0).values.median()) / self.extent
+
     def _take_snapshot(self) -> None:
         """Keep the current (healthy) state in memory to roll back to."""
         self._snapshot = {"iteration": self.iteration, "model": copy.deepcopy(self.model.state_for_checkpoint()),
