@@ -42,6 +42,8 @@ PRIORS = {"priors.rigidity": 4, "priors.smoothness": 100}
 RUNGS = [
     "dtg=dtg:{}",
     'dtg+geometry-bias=dtg:{"model.geometry_bias": true}',
+    'dtg+old-deformation-lr=dtg:{"lr.deformation_scene": [0.008, 0.0008], "lr.time_embedding": [0.008, 0.0008], '
+    '"lr.deformation_warmup": 0}',
     'dtg+thermal-grad=dtg:{"model.thermal_grad_to_rgb_deformation": true}',
     'dtg+paper-thermal-geometry=dtg:{"model.deform_geometry": ["rgb", "thermal"]}',
     'dtg+rigidity+smoothness=dtg:' + json.dumps({**PRIORS, "model.thermal_grad_to_rgb_deformation": True}),
