@@ -15,13 +15,14 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from rig.cli_format import positive_float
 
 
 def demo(args: argparse.Namespace) -> int:
     out = Path(args.out or time.strftime("runs/demo-%Y%m%d-%H%M%S"))
     session, run_dir = out / "session", out / "run"
     if session.exists() or run_dir.exists():
-        raise SystemExit(f"{out}: holds an earlier demo; remove it or pass --out NEW_FOLDER")
+        raise ValueError(f"{out}: holds an earlier demo; remove it or pass --out NEW_FOLDER")
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     print(f"[1/2] simulated capture, {args.duration:g} s -> {session}", flush=True)
@@ -59,7 +60,7 @@ def register(sub) -> None:
     p = sub.add_parser("demo", help="the appliance on the simulated rig: capture + live training + status page",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default=None, help="output folder (default: runs/demo-<date>-<time>, new each time)")
-    p.add_argument("--duration", type=float, default=60.0, help="capture seconds (default: 60)")
+    p.add_argument("--duration", type=positive_float, default=60.0, help="capture seconds (default: 60)")
     p.add_argument("--after", type=int, default=1500, help="iterations after the capture ends (default: 1500)")
     p.add_argument("--no-serve", dest="serve", action="store_false", help="no status page")
     p.add_argument("--host", default="127.0.0.1", help="status page address (default: 127.0.0.1)")

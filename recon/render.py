@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -54,12 +55,14 @@ def load_run(run_dir: Path) -> tuple[DTGModel, dict]:
     """The model of a run (its latest checkpoint) and the run's scene facts (scene.json)."""
     from recon.config import config_from_dict
 
+    from recon.train import read_checkpoint
+
     ckpt = run_dir / "checkpoints" / "latest.pt"
     facts_path = run_dir / "scene.json"
-    for path in (ckpt, facts_path):
+    for path in (ckpt.parent, facts_path):
         if not path.exists():
-            raise SystemExit(f"{path}: missing; is {run_dir} a `recon run` folder?")
-    state = torch.load(ckpt, weights_only=False)
+            raise ValueError(f"{path}: missing; is {run_dir} a `recon run` folder?")
+    state, _ = read_checkpoint(ckpt, log=lambda m: print(m, file=sys.stderr))
     cfg = config_from_dict(state["config"])
     return DTGModel.from_checkpoint(cfg.model, state["model"]), json.loads(facts_path.read_text())
 
@@ -73,7 +76,7 @@ def camera_from_args(args, facts: dict) -> Camera:
         text = Path(args.pose).read_text() if Path(args.pose).exists() else args.pose
         c2w = np.asarray(json.loads(text), dtype=np.float64)
         if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
-            raise SystemExit(f"--pose: expected a 4x4 camera-to-world matrix (OpenGL axes), got shape {c2w.shape}")
+            raise ValueError(f"--pose: expected a 4x4 camera-to-world matrix (OpenGL axes), got shape {c2w.shape}")
         cam["c2w"] = c2w.tolist()
     viewmat = torch.as_tensor(viewmat_from_c2w_opengl(np.asarray(cam["c2w"])), dtype=torch.float32)
     return Camera(viewmat, float(cam["fx"]), float(cam["fy"]), float(cam["cx"]), float(cam["cy"]),

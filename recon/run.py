@@ -40,6 +40,7 @@ from recon.guard import TrainingDiverged
 from recon.train import Trainer
 from recon import viz
 from server.cli_options import add_serve_arguments, serve_from_args
+from rig.cli_format import positive_float, positive_int
 
 
 def test_render(trainer: Trainer, modality: str, view) -> np.ndarray:
@@ -163,17 +164,17 @@ def input_kind(path: Path) -> str:
         return "dataset"
     if (path / "session.json").exists():
         return "session"
-    raise SystemExit(f"{path}: neither a prepared dataset (transforms.json) nor a rig session "
+    raise ValueError(f"{path}: neither a prepared dataset (transforms.json) nor a rig session "
                      f"(session.json); see FORMATS.md, `recon simulate` or `rig capture`")
 
 
 def make_trainer(args, scene: Scene, out: Path, overrides: dict) -> Trainer:
     if args.resume:
         ckpt = out / "checkpoints" / "latest.pt"
-        if not ckpt.exists():
-            raise SystemExit(f"{ckpt}: no checkpoint to resume from")
+        if not ckpt.parent.is_dir():
+            raise ValueError(f"{ckpt}: no checkpoint to resume from")
         trainer = Trainer.resume(ckpt, scene, out, **overrides)
-        print(f"resumed {ckpt} at iteration {trainer.iteration}")
+        print(f"resumed at iteration {trainer.iteration}")
         return trainer
     return Trainer(config_from_args(args, overrides), scene, out)
 
@@ -208,7 +209,7 @@ def run(args: argparse.Namespace) -> int:
     inp, out = Path(args.input), Path(args.out)
     kind = input_kind(inp)
     if args.follow and (kind != "session" or args.resume or args.frames is not None):
-        raise SystemExit("--follow trains on a rig session while it is captured (and cannot --resume or "
+        raise ValueError("--follow trains on a rig session while it is captured (and cannot --resume or "
                          "take --frames: it picks its own)")
     if kind == "session":
         try:
@@ -241,7 +242,7 @@ def train_and_finish(args, inp: Path, out: Path, kind: str, overrides: dict, fee
                                        prepare_options=prepare_options(args), on_step=feed.on_step)
         except FollowError as exc:
             report = f" What was measured is in {exc.data_dir / REPORT_FILE}" if exc.data_dir else ""
-            raise SystemExit(f"recon run: nothing trained: {exc}.{report}") from None
+            raise ValueError(f"recon run: nothing trained: {exc}.{report}") from None
     else:
         data_dir = inp
         if kind == "session":
@@ -250,7 +251,7 @@ def train_and_finish(args, inp: Path, out: Path, kind: str, overrides: dict, fee
                 try:
                     prepare_session(inp, data_dir, **prepare_options(args))
                 except PrepareError as exc:     # a refusal with advice, not a crash
-                    raise SystemExit(prepare_refused(inp, data_dir, exc)) from None
+                    raise ValueError(prepare_refused(inp, data_dir, exc)) from None
         scene = Scene(load_dataset(data_dir))
         trainer = make_trainer(args, scene, out, overrides)
         try:
@@ -290,28 +291,28 @@ def register(sub) -> None:
     p.add_argument("--method", default="dtg", choices=list(METHODS),
                    help="dtg (full) or a baseline/ablation of the paper's Table 3 (default: dtg)")
     p.add_argument("--out", required=True, help="run folder (created)")
-    p.add_argument("--iterations", type=int,
+    p.add_argument("--iterations", type=positive_int,
                    help="train exactly N iterations (default: until held-out error has converged, "
                         "within --minutes)")
-    p.add_argument("--minutes", type=float,
+    p.add_argument("--minutes", type=positive_float,
                    help=f"wall-clock cap (default {DEFAULT_MINUTES:g}); training usually ends earlier, "
                         f"when held-out error on every 8th time step has converged")
     p.add_argument("--fixed", action="store_true",
                    help="train for exactly --minutes (the schedule stretched to fit), not until converged")
     p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoints/latest.pt")
-    p.add_argument("--max-gaussians", type=int, help="Gaussian budget (default: 0.5 per pixel of a training image, within 5k..100k)")
+    p.add_argument("--max-gaussians", type=positive_int, help="Gaussian budget (default: 0.5 per pixel of a training image, within 5k..100k)")
     p.add_argument("--auto-budget", action="store_true",
                    help="stop adding Gaussians when held-out PSNR stops improving")
     p.add_argument("--follow", action="store_true",
                    help="train while `rig capture` is still writing SESSION; stop --after iterations after it ends")
     p.add_argument("--after", type=int, default=1500, help="with --follow: iterations after capture ends (default 1500)")
-    p.add_argument("--downscale", type=int, default=4,
+    p.add_argument("--downscale", type=positive_int, default=4,
                    help="a session's images are prepared at 1/N size (default 4: 640x480 thermal -> 160x120)")
     p.add_argument("--calibration", type=Path, help="a session's rig_calibration.json (see `recon prepare`)")
     p.add_argument("--scale", type=float, help="a session's metres per SfM unit (see `recon prepare`)")
-    p.add_argument("--frames", type=int,
+    p.add_argument("--frames", type=positive_int,
                    help=f"a session's time steps (see `recon prepare`; default {PrepareOptions().frames})")
     p.add_argument("--seed", type=int)
-    p.add_argument("--threads", type=int, help="CPU threads (default: all)")
+    p.add_argument("--threads", type=positive_int, help="CPU threads (default: all)")
     add_serve_arguments(p)
     p.set_defaults(func=run)

@@ -52,6 +52,34 @@ def initial_background(scene: Scene, modality: str) -> torch.Tensor:
     return torch.cat(border).median(0).values if border else torch.zeros(3 if modality == "rgb" else 1)
 
 
+PREVIOUS_CHECKPOINT = "previous.pt"
+
+
+class CheckpointError(RuntimeError):
+    """No readable checkpoint; the message names the files and what to do."""
+
+
+def read_checkpoint(path: Path, log=print) -> tuple[dict, Path]:
+    """The state in checkpoint `path`, or, when it is missing or unreadable (a torn copy, a full
+    disk), in the previous one beside it (said through `log`). -> (state, the file used)"""
+    problems = []
+    for candidate in dict.fromkeys((path, path.with_name(PREVIOUS_CHECKPOINT))):
+        if not candidate.exists():
+            problems.append(f"{candidate}: missing")
+            continue
+        try:
+            state = torch.load(candidate, weights_only=False)
+            if not isinstance(state, dict) or "model" not in state or "config" not in state:
+                raise ValueError("not a thermal4d checkpoint")
+        except Exception as exc:      # torch reports a torn zip, pickle a truncated stream
+            problems.append(f"{candidate}: unreadable ({str(exc).split('.')[0]})")
+            continue
+        if problems:
+            log(f"{problems[0]}; using the previous checkpoint {candidate} (iteration {state.get('iteration')})")
+        return state, candidate
+    raise CheckpointError("; ".join(problems) + ". No usable checkpoint: train again without --resume")
+
+
 class Trainer:
     def __init__(self, cfg: TrainConfig, scene: Scene, out_dir: Path | None = None,
                  model: DTGModel | None = None, log=None):
@@ -571,12 +599,14 @@ class Trainer:
         }
         tmp = path.with_suffix(".tmp")
         torch.save(state, tmp)
+        if path.exists():   # keep the one before: a file damaged later still leaves a good state
+            path.replace(path.with_name(PREVIOUS_CHECKPOINT))
         tmp.replace(path)   # atomic: a crash never leaves a torn checkpoint
 
     @classmethod
     def resume(cls, path: Path, scene: Scene, out_dir: Path | None = None, log=None,
                **overrides) -> "Trainer":
-        state = torch.load(path, weights_only=False)
+        state, path = read_checkpoint(path, log or print)
         cfg = config_from_dict(state["config"])
         for k, v in overrides.items():
             setattr(cfg, k, v)

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from server.cli_options import add_serve_arguments, serve_from_args
-from rig.cli_format import HelpFormatter
+from rig.cli_format import HelpFormatter, positive_float
 from rig.drivers import flir
 from rig.drivers.gige import GvcpError, gvsp
 from rig.drivers.gige.features import GenicamXmlError
@@ -456,7 +456,7 @@ def register(sub) -> None:
                "  rig capture --phone-drop ~/Drop --duration 30      # real phone, simulated thermal camera\n"
                "  rig capture --camera gige://192.168.1.20 --phone-drop ~/Drop --syncbox /dev/ttyACM0\n"
                "  rig info /tmp/s1 --json")
-    p.add_argument("--duration", type=float, default=60.0, help="seconds to record")
+    p.add_argument("--duration", type=positive_float, default=60.0, help="seconds to record")
     p.add_argument("--camera", help="thermal camera, gige://HOST[:PORT] (not named: simulated)")
     p.add_argument("--phone-drop", type=Path, help="folder where the phone's files arrive")
     p.add_argument("--syncbox", help="serial port of the sync box, e.g. /dev/ttyACM0")

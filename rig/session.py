@@ -264,9 +264,10 @@ class Session:
         meta_path = self.path / "session.json"
         if not meta_path.is_file():
             raise FileNotFoundError(f"{self.path} is not a thermal4d session (no session.json)")
-        self.meta = json.loads(meta_path.read_text())
-        if self.meta.get("format") != FORMAT:
-            raise ValueError(f"{meta_path}: format {self.meta.get('format')!r}, expected {FORMAT!r}")
+        self.meta = _read_json(meta_path)
+        if not isinstance(self.meta, dict) or self.meta.get("format") != FORMAT:
+            found = self.meta.get("format") if isinstance(self.meta, dict) else type(self.meta).__name__
+            raise ValueError(f"{meta_path}: format {found!r}, expected {FORMAT!r}")
         self.thermal: list[dict] = []
         self.rgb: list[dict] = []
         self.events: list[dict] = []
@@ -298,12 +299,12 @@ class Session:
     @property
     def summary(self) -> dict | None:
         p = self.path / "closed.json"
-        return json.loads(p.read_text()) if p.is_file() else None
+        return _read_json(p) if p.is_file() else None
 
     @property
     def sync(self) -> dict | None:
         p = self.path / "sync.json"
-        return json.loads(p.read_text()) if p.is_file() else None
+        return _read_json(p) if p.is_file() else None
 
     @property
     def torn_or_bad_lines(self) -> int:
@@ -387,3 +388,12 @@ class Session:
 def open_session(path: str | Path) -> Session:
     """Open a session folder for reading (also while `rig capture` is writing it)."""
     return Session(path)
+
+
+def _read_json(path: Path):
+    """A session's JSON file; a damaged one is a ValueError that names it."""
+    try:
+        return json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc}); restore it from a copy or record the session "
+                         f"again") from None

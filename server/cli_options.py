@@ -28,10 +28,10 @@ def serve_from_args(args: argparse.Namespace, run_dir=None, session_dir=None) ->
     if not getattr(args, "serve", False):
         return None
     if not 0 <= args.port <= 65535:
-        raise SystemExit(f"--port must be in 0..65535, got {args.port}")
+        raise ValueError(f"--port must be in 0..65535, got {args.port}")
     try:
         handle = serve(args.host, args.port, run_dir=run_dir, session_dir=session_dir)
     except OSError as exc:
-        raise SystemExit(f"--serve: cannot listen on {args.host}:{args.port}: {exc.strerror or exc}") from None
+        raise ValueError(f"--serve: cannot listen on {args.host}:{args.port}: {exc.strerror or exc}") from None
     print(f"status page: {handle.url}", flush=True)
     return handle

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from recon.data.simulate import SimulateConfig, simulate_dataset
 from rig.sim import FAMILY_VARIANTS, VARIANTS
+from rig.cli_format import positive_int
 
 EPILOG = """\
 examples:
@@ -41,7 +42,7 @@ def register(sub) -> None:
     p.add_argument("--variant", choices=VARIANTS + FAMILY_VARIANTS, default=d.variant,
                    help=f"scene variant (default: {d.variant}); family-<case>: a new scene per --seed "
                         f"(rig/sim/family.py)")
-    p.add_argument("--frames", type=int, default=d.frames,
+    p.add_argument("--frames", type=positive_int, default=d.frames,
                    help=f"time steps over the 10 s script (default: {d.frames})")
     p.add_argument("--size", type=_size, default=(d.width, d.height), metavar="WxH",
                    help=f"image size of both modalities (default: {d.width}x{d.height})")

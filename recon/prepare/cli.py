@@ -10,6 +10,7 @@ from pathlib import Path
 from recon.prepare.frames import PrepareError
 from recon.prepare.pipeline import REPORT_FILE, PrepareOptions, prepare_session
 from recon.prepare.report import Report
+from rig.cli_format import positive_int
 
 EPILOG = """\
 examples:
@@ -48,13 +49,13 @@ def register(sub) -> None:
     p.add_argument("session", type=Path, metavar="SESSION", help="session folder written by `rig capture`")
     p.add_argument("out", type=Path, metavar="OUT", help="new (or empty) dataset folder")
     p.add_argument("--calibration", type=Path, help="rig_calibration.json (default: found beside the session)")
-    p.add_argument("--frames", type=int, default=d.frames,
+    p.add_argument("--frames", type=positive_int, default=d.frames,
                    help=f"time steps picked over the session, one RGB + one thermal frame each (default: {d.frames})")
     p.add_argument("--test-every", type=int, default=d.test_every,
                    help=f"hold out every n-th time step as test, 0 = none (default: {d.test_every})")
     p.add_argument("--scale", type=float, help="metres per SfM unit (default: the calibration checkerboard "
                                                "in view, else the simulator's truth for simulated sessions)")
-    p.add_argument("--downscale", type=int, default=d.downscale,
+    p.add_argument("--downscale", type=positive_int, default=d.downscale,
                    help=f"integer factor for the written images (default: {d.downscale})")
     p.add_argument("--matching", choices=("sequential", "exhaustive"), default=d.matching,
                    help=f"pycolmap pairing; sequential adds loop-closure keyframe pairs (default: {d.matching})")
@@ -69,7 +70,7 @@ def register(sub) -> None:
                    help=f"refuse above this median path jitter, deg (default: {d.max_jitter_deg})")
     p.add_argument("--refine-intrinsics", action="store_true",
                    help="let bundle adjustment refine the calibrated phone intrinsics (default: fixed)")
-    p.add_argument("--threads", type=int, default=d.threads, help=f"pycolmap threads (default: {d.threads})")
+    p.add_argument("--threads", type=positive_int, default=d.threads, help=f"pycolmap threads (default: {d.threads})")
     p.add_argument("--keep-work", action="store_true", help="keep OUT/.work (SfM images, database, model)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(func=run)
