@@ -11,6 +11,7 @@ import torch
 from PIL import Image
 
 from recon import routing
+from recon.checkpoint import read_checkpoint
 from recon.model import DTGModel
 from recon.scene import Camera
 from recon.splat import rasterization
@@ -54,8 +55,6 @@ def render_frame(model: DTGModel, modality: str, t: float, camera: Camera) -> to
 def load_run(run_dir: Path) -> tuple[DTGModel, dict]:
     """The model of a run (its latest checkpoint) and the run's scene facts (scene.json)."""
     from recon.config import config_from_dict
-
-    from recon.train import read_checkpoint
 
     ckpt = run_dir / "checkpoints" / "latest.pt"
     facts_path = run_dir / "scene.json"

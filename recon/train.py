@@ -22,6 +22,7 @@ from recon.eval import psnr
 from recon.gaussians import extend_knots, init_gaussians, trajectory_knots
 from recon.losses import EmbeddingSmoothness, rgb_loss, thermal_loss
 from recon.model import DTGModel, check_params, time_rows
+from recon.checkpoint import PREVIOUS_CHECKPOINT, read_checkpoint
 from recon.guard import DivergenceGuard, Event, TrainingDiverged, nonfinite_parameter
 from recon.points import changing_points, initial_temperatures
 from recon.priors import MotionPriors
@@ -50,34 +51,6 @@ def initial_background(scene: Scene, modality: str) -> torch.Tensor:
             ring = ring[torch.cat([valid[0], valid[-1], valid[:, 0], valid[:, -1]])]
         border.append(ring)
     return torch.cat(border).median(0).values if border else torch.zeros(3 if modality == "rgb" else 1)
-
-
-PREVIOUS_CHECKPOINT = "previous.pt"
-
-
-class CheckpointError(RuntimeError):
-    """No readable checkpoint; the message names the files and what to do."""
-
-
-def read_checkpoint(path: Path, log=print) -> tuple[dict, Path]:
-    """The state in checkpoint `path`, or, when it is missing or unreadable (a torn copy, a full
-    disk), in the previous one beside it (said through `log`). -> (state, the file used)"""
-    problems = []
-    for candidate in dict.fromkeys((path, path.with_name(PREVIOUS_CHECKPOINT))):
-        if not candidate.exists():
-            problems.append(f"{candidate}: missing")
-            continue
-        try:
-            state = torch.load(candidate, weights_only=False)
-            if not isinstance(state, dict) or "model" not in state or "config" not in state:
-                raise ValueError("not a thermal4d checkpoint")
-        except Exception as exc:      # torch reports a torn zip, pickle a truncated stream
-            problems.append(f"{candidate}: unreadable ({str(exc).split('.')[0]})")
-            continue
-        if problems:
-            log(f"{problems[0]}; using the previous checkpoint {candidate} (iteration {state.get('iteration')})")
-        return state, candidate
-    raise CheckpointError("; ".join(problems) + ". No usable checkpoint: train again without --resume")
 
 
 class Trainer:

@@ -19,6 +19,7 @@ from functools import lru_cache
 import numpy as np
 
 from rig.sim.camera import rotation
+from rig.sim.checkerboard import CheckerboardTarget
 from rig.sim.raycast import Instance
 from rig.sim.shapes import Box, Cylinder, Sphere
 from rig.sim.textures import Texture, fbm, patterned_texture, plain_texture, table_texture
@@ -216,7 +217,6 @@ class TableTopScene:
     def _printed_target(self) -> Instance:
         """The `rig calibrate` checkerboard printed on paper (0.5 mm), lying behind the objects:
         a known size in view, for the metric scale of SfM. Paper at the table's temperature."""
-        from rig.sim.calibration import CheckerboardTarget   # calibration builds on this module
         target = CheckerboardTarget(thickness_m=0.0005)
         albedo, _ = target.face_textures()
         half = (*(s / 2 for s in target.size_m), target.thickness_m / 2)
