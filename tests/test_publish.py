@@ -188,6 +188,7 @@ def test_status_of_live_training_has_no_fixed_budget(scene, tmp_path):
 def test_status_carries_divergences_and_why_training_stopped(scene, tmp_path):
     tr = trainer(scene, iterations=40)
     tr.cfg.eval_every = 20
+    tr.cfg.guard.snapshot_every = 20         # a good state to return to at iteration 20
     feed = TrainingFeed(LivePublisher(tmp_path))
     while tr.iteration < 21:
         tr.tick()

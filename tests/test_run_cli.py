@@ -96,7 +96,7 @@ def _calibration_file(path):
 
 def _refused(res, *phrases):
     """One clean paragraph on stderr (no traceback) with `phrases` and where the report is."""
-    assert res.returncode == 1 and "Traceback" not in res.stderr
+    assert res.returncode == 2 and "Traceback" not in res.stderr
     msg = [line for line in res.stderr.splitlines() if line.startswith("recon run:")]
     assert len(msg) == 1 and "nothing trained" in msg[0] and REPORT_FILE in msg[0]
     assert all(p in msg[0] for p in phrases), msg[0]
