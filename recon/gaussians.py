@@ -56,8 +56,9 @@ def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
 def embedding_keys(cfg: ModelConfig) -> list[str]:
     if cfg.deformation == "shared":
         return ["embedding"]
-    if cfg.deformation == "progressive":
-        return [f"embedding_{m}" for m in cfg.modalities]
+    if cfg.deformation == "progressive":     # a stage with nothing to predict has no network
+        return [f"embedding_{m}" for m in cfg.modalities
+                if m in cfg.deform_geometry or m in cfg.deform_opacity or m in cfg.deform_features]
     return []
 
 
@@ -79,7 +80,8 @@ def extend_knots(knots: torch.Tensor, factor: int, zero: bool = False) -> torch.
 
 def init_gaussians(points: torch.Tensor, colors: torch.Tensor, temperatures: torch.Tensor | None,
                    cfg: ModelConfig, routing: RoutingConfig, generator: torch.Generator,
-                   knots: int = 0, dynamic: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+                   knots: int = 0, dynamic: torch.Tensor | None = None,
+                   basis: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
     """Gaussians at initial points, 3DGS style.
 
     points: (M, 3); colors: (M, 3) in [0, 1]; temperatures: (M,) normalised temperature or None;
@@ -109,8 +111,11 @@ def init_gaussians(points: torch.Tensor, colors: torch.Tensor, temperatures: tor
         params["route_logits"] = torch.log(torch.tensor(routing.prior_before)).repeat(m, 1)
     if knots:
         params["trajectory"] = torch.zeros(m, knots, 3)
-    if cfg.dynamic_gate and cfg.deformation != "none":
+    if cfg.dynamic_gate and cfg.deformation != "none" and not cfg.motion_bases:
         params["dynamic_logit"] = torch.full((m,), cfg.init_dynamic)
+    if cfg.motion_bases and cfg.deformation != "none":
+        params["motion_basis"] = (basis if basis is not None else torch.zeros(m)).float()
+        params["dynamic_logit"] = torch.full((m,), cfg.basis_gate_init)
     if cfg.motion_split and cfg.deformation != "none":
         params["dynamic"] = (dynamic if dynamic is not None else torch.ones(m)).float()   # 1: may move
     return params

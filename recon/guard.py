@@ -52,10 +52,11 @@ class DivergenceGuard:
         self.losses.clear()
         self.over.clear()
 
-    def check_step(self, stats: dict) -> str | None:
+    def check_step(self, stats: dict, ratio: bool = True) -> str | None:
         """A reason if this iteration's losses say the run blew up, else None. Per-view losses
         are noisy, so the test is on medians: the last ``patience`` iterations against the
-        ``window`` before them."""
+        ``window`` before them. ratio=False: only non-finite losses count (while the training
+        window grows in time, each new time step raises the loss by design)."""
         if not self.cfg.enabled:
             return None
         for key, value in stats.items():
@@ -64,6 +65,8 @@ class DivergenceGuard:
             value = float(value)
             if not math.isfinite(value):
                 return f"{key[5:]} loss is {value}"
+            if not ratio:
+                continue
             history = self.losses.setdefault(key, deque(maxlen=self.cfg.window + self.cfg.patience))
             history.append(value)
             recent, before = self._split(history)

@@ -25,6 +25,19 @@ def thermal_loss(pred: torch.Tensor, gt: torch.Tensor, valid: torch.Tensor) -> t
     return (pred - gt).abs()[valid].mean()
 
 
+def trimmed_l1(pred: torch.Tensor, gt: torch.Tensor, valid: torch.Tensor | None, keep: float) -> torch.Tensor:
+    """Mean absolute error over the `keep` fraction of (valid) pixels that fit best: a frame whose
+    moving objects the model cannot place yet still teaches the static scene, without those
+    objects being painted onto it (RobustNeRF's trimmed estimator). pred, gt: (H, W) or (H, W, C)."""
+    err = (pred - gt).abs()
+    err = err.mean(-1) if err.dim() == 3 else err
+    err = err[valid] if valid is not None else err.flatten()
+    if err.numel() == 0:
+        return pred.sum() * 0
+    limit = torch.quantile(err.detach(), keep) if err.numel() > 1 else err.detach().max()
+    return err[err <= limit].mean()
+
+
 def knn_indices(points: torch.Tensor, k: int, chunk: int = 2048) -> torch.Tensor:
     """Indices (M, k) of the k nearest other points of points (M, 3)."""
     k = min(k, points.shape[0] - 1)

@@ -19,10 +19,11 @@ from torch import nn
 from recon.config import ModelConfig
 from recon.deformation import DeformationNet, geometry_outputs, modality_outputs
 from recon.gaussians import embedding_keys, sh_coeffs
+from recon.motion import MotionBases, apply_motion
 from recon.time_embedding import TimeEmbedding, lerp_rows
 
 GEOMETRY = ("means", "quats", "log_scales")
-NOT_LEARNED = ("dynamic",)      # per-Gaussian state the trainer sets (densification still carries it)
+NOT_LEARNED = ("dynamic", "motion_basis")      # per-Gaussian state the trainer sets (densification still carries it)
 
 
 def feature_shape(cfg: ModelConfig, modality: str) -> tuple[int, int]:
@@ -40,7 +41,7 @@ def time_rows(cfg: ModelConfig, n_times: int) -> tuple[int, int]:
 
 class DTGModel(nn.Module):
     def __init__(self, cfg: ModelConfig, params: dict[str, torch.Tensor], n_times: int,
-                 backgrounds: dict[str, torch.Tensor] | None = None):
+                 backgrounds: dict[str, torch.Tensor] | None = None, pivots: torch.Tensor | None = None):
         super().__init__()
         self.cfg = cfg
         self.n_times = n_times
@@ -50,6 +51,9 @@ class DTGModel(nn.Module):
         self.backgrounds = nn.ParameterDict({
             m: nn.Parameter(bg.get(m, torch.zeros(feature_shape(cfg, m)[1]))) for m in cfg.modalities})
         self.deformers = nn.ModuleDict()
+        self.motion = None
+        if cfg.motion_bases and cfg.deformation != "none":
+            self.motion = MotionBases(pivots if pivots is not None else torch.zeros(0, 3), n_times)
         if cfg.deformation != "none":
             coarse, fine = time_rows(cfg, n_times)
             self.time_embedding = TimeEmbedding(cfg.time_embedding_dim, coarse, fine,
@@ -60,6 +64,8 @@ class DTGModel(nn.Module):
                 for m in (cfg.modalities if stage == "shared" else [stage]):
                     k, c = feature_shape(cfg, m)
                     outs.update(modality_outputs(m, k * c, m in cfg.deform_opacity, m in cfg.deform_features))
+                if not outs:     # nothing to predict (e.g. F_rgb when motion bases move geometry)
+                    continue
                 self.deformers[stage] = DeformationNet(cfg.time_embedding_dim, cfg.gaussian_embedding_dim,
                                                        cfg.mlp_width, outs, cfg.geometry_bias)
 
@@ -69,6 +75,8 @@ class DTGModel(nn.Module):
 
     def stage_residuals(self, stage: str, t: float, progress: float) -> dict[str, torch.Tensor]:
         """Residuals of one deformation stage ('shared', 'rgb' or 'thermal') at time t."""
+        if stage not in self.deformers:
+            return {}
         key = "embedding" if stage == "shared" else f"embedding_{stage}"
         e_t = self.time_embedding(t, progress)
         return self.deformers[stage](e_t, self.gaussians[key])
@@ -91,16 +99,23 @@ class DTGModel(nn.Module):
 
     def means_at(self, stage: str, t: float, progress: float, index: torch.Tensor) -> torch.Tensor:
         """Positions (S, 3) at time t of the Gaussians `index` (S,) after one stage's residuals."""
-        key = "embedding" if stage == "shared" else f"embedding_{stage}"
-        res = self.deformers[stage](self.time_embedding(t, progress), self.gaussians[key][index])
-        moved = res["means"]
+        if stage is None or stage not in self.deformers:    # no network moves geometry (bases may)
+            moved = torch.zeros_like(self.gaussians["means"][index])
+        else:
+            key = "embedding" if stage == "shared" else f"embedding_{stage}"
+            res = self.deformers[stage](self.time_embedding(t, progress), self.gaussians[key][index])
+            moved = res["means"]
         if "trajectory" in self.gaussians:
             moved = moved + lerp_rows(self.gaussians["trajectory"][index], t, dim=1)
-        if "dynamic_logit" in self.gaussians:
+        if "dynamic_logit" in self.gaussians and self.motion is None:
             moved = moved * self.dynamic_gate(index)[:, None]
         if "dynamic" in self.gaussians:
             moved = moved * self.gaussians["dynamic"][index, None]
-        return self.gaussians["means"][index] + moved
+        means = self.gaussians["means"][index] + moved
+        if self.motion is not None:
+            means, _ = apply_motion(means, self.gaussians["quats"][index], self.gaussians["motion_basis"][index],
+                                    self.dynamic_gate(index), self.motion, t)
+        return means
 
     def dynamic_gate(self, index: torch.Tensor | slice = slice(None)) -> torch.Tensor:
         """(N,) or (S,) how much each Gaussian may move (needs a static/dynamic split)."""
@@ -132,17 +147,21 @@ class DTGModel(nn.Module):
             if cfg.deformation == "progressive" and modality == "thermal" and "rgb" in cfg.modalities:
                 first = rgb_geometry if rgb_geometry is not None else {
                     k: v for k, v in self.stage_residuals("rgb", t, progress).items() if k in GEOMETRY}
+                first = {k: first.get(k, torch.zeros_like(geo[k])) for k in GEOMETRY}
                 if not cfg.thermal_grad_to_rgb_deformation:
                     first = {k: v.detach() for k, v in first.items()}
                 applied = {k: first[k] + res[k] for k in GEOMETRY}
             if "trajectory" in g:       # shared by every modality, trained by every loss
                 applied = {**applied, "means": applied["means"] + lerp_rows(g["trajectory"], t, dim=1)}
-            if "dynamic_logit" in g:
+            if "dynamic_logit" in g and self.motion is None:
                 gate = self.dynamic_gate()[:, None]
                 applied = {k: v * gate for k, v in applied.items()}
             if "dynamic" in g:
                 applied = {k: v * g["dynamic"][:, None] for k, v in applied.items()}
             geo = {k: geo[k] + applied[k] for k in GEOMETRY}
+            if self.motion is not None:
+                geo["means"], geo["quats"] = apply_motion(geo["means"], geo["quats"], g["motion_basis"],
+                                                          self.dynamic_gate(), self.motion, t)
             if f"opacity_{modality}" in res:
                 opacity_logit = opacity_logit + res[f"opacity_{modality}"][:, 0]
             if f"features_{modality}" in res:
@@ -159,7 +178,10 @@ class DTGModel(nn.Module):
     def from_checkpoint(cls, cfg: ModelConfig, state: dict) -> "DTGModel":
         sd = state["state_dict"]
         params = {k[len("gaussians."):]: v.clone() for k, v in sd.items() if k.startswith("gaussians.")}
-        model = cls(cfg, params, state["n_times"])
+        model = cls(cfg, params, state["n_times"], pivots=sd.get("motion.pivots"))
+        if model.motion is not None:        # a live run may have extended the knots
+            for name in ("rotation", "translation"):
+                setattr(model.motion, name, nn.Parameter(sd[f"motion.{name}"].clone()))
         for name in ("coarse", "fine"):     # a live run may have extended or refined them
             key = f"time_embedding.{name}"
             if key in sd:
@@ -173,7 +195,8 @@ def check_params(cfg: ModelConfig, params: dict[str, torch.Tensor]) -> None:
     expected = list(GEOMETRY) + [f"{p}_{m}" for m in cfg.modalities for p in ("features", "opacity")]
     expected += embedding_keys(cfg) + (["route_logits"] if cfg.routing else [])
     expected += ["trajectory"] if cfg.trajectory_step and cfg.deformation != "none" else []
-    expected += ["dynamic_logit"] if cfg.dynamic_gate and cfg.deformation != "none" else []
+    expected += ["dynamic_logit"] if (cfg.dynamic_gate or cfg.motion_bases) and cfg.deformation != "none" else []
+    expected += ["motion_basis"] if cfg.motion_bases and cfg.deformation != "none" else []
     expected += ["dynamic"] if cfg.motion_split and cfg.deformation != "none" else []
     n = params["means"].shape[0]
     for key in expected:

@@ -86,3 +86,25 @@ def changing_points(scene: Scene, points: torch.Tensor, rgb_change: float, kelvi
         off = ((values - median).abs().amax(-1) > limit) & seen        # (V, M)
         changing |= off.sum(0) > fraction * seen.sum(0).clamp_min(1)
     return changing
+
+
+def observed_time(scene: Scene, points: torch.Tensor, colors: torch.Tensor, tolerance: float = 0.12
+                  ) -> tuple[float, torch.Tensor] | None:
+    """When the moving points were seen, and which of them are there then.
+
+    An SfM cloud holds a moving object where some frame saw it (a simulator's cloud may hold it
+    at several instants: ghosts along its path). The training time whose RGB views agree best
+    with the points' own colours is when they were seen; the points that agree with the views of
+    that instant are the objects as they were then. points (M, 3), colors (M, 3) in [0, 1] ->
+    (time, matched (M,) bool), or None without points or RGB views."""
+    views = scene.train["rgb"]
+    if not views or len(points) == 0:
+        return None
+    values, seen = sample_views(scene, views, points, occlusion_radius=2)
+    match = ((values - colors[None]).abs().amax(-1) < tolerance) & seen        # (V, M)
+    score = match.sum(1).float() / seen.sum(1).clamp_min(1)
+    per_time: dict[float, list[int]] = {}
+    for i, v in enumerate(views):
+        per_time.setdefault(v.time, []).append(i)
+    best = max(per_time, key=lambda t: (float(score[per_time[t]].mean()), -abs(t - 0.5)))
+    return float(best), match[per_time[best]].any(0)

@@ -145,6 +145,17 @@ class Strategy:
         bad = ~torch.isfinite(params["means"].detach()).all(1) | ~torch.isfinite(params["log_scales"].detach()).all(1)
         return dead | bad
 
+    @staticmethod
+    def _within(candidates: torch.Tensor, grad: torch.Tensor, room: int) -> torch.Tensor:
+        """The candidates with the largest gradients that fit in `room` more Gaussians (a split or
+        a clone adds one net Gaussian each)."""
+        if candidates.sum() <= room:
+            return candidates
+        top = torch.zeros_like(candidates)
+        if room > 0:
+            top[torch.where(candidates, grad, -1.0).topk(room).indices] = True
+        return candidates & top
+
     def active(self, iteration: int, progress: float) -> bool:
         return (self.cfg.start <= progress < self.cfg.stop and iteration > 0
                 and iteration % self.cfg.every == 0)
@@ -164,13 +175,14 @@ class Strategy:
         if self.growing:
             grad = self.mean_grad(roles)
             candidates = grad >= self.cfg.grad_threshold
-            room = self.cfg.max_gaussians - n
-            if candidates.sum() > room // 2:       # a split adds one net Gaussian, a clone one
-                keep = max(room // 2, 0)
-                top = torch.zeros_like(candidates)
-                if keep > 0:
-                    top[torch.where(candidates, grad, -1.0).topk(keep).indices] = True
-                candidates = candidates & top
+            # Moving Gaussians have a budget of their own: a moving object is tracked after the
+            # static scene has taken the main budget, and must still be able to grow.
+            moving = params["motion_basis"].detach() > 0 if "motion_basis" in params else torch.zeros_like(candidates)
+            n_moving = int(moving.sum())
+            static_room = self.cfg.max_gaussians - (n - n_moving)
+            moving_room = int(self.cfg.moving_budget * self.cfg.max_gaussians) - n_moving
+            candidates = (self._within(candidates & ~moving, grad, static_room // 2)
+                          | self._within(candidates & moving, grad, moving_room))
             big = params["log_scales"].detach().exp().max(1).values > self.cfg.percent_dense * self.extent
             clone, to_split = candidates & ~big, candidates & big
             report["cloned"], report["split"] = int(clone.sum()), int(to_split.sum())

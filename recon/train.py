@@ -19,12 +19,14 @@ import torch
 from recon import routing
 from recon.config import TrainConfig, config_from_dict, config_to_dict
 from recon.eval import psnr
-from recon.gaussians import extend_knots, init_gaussians, trajectory_knots
-from recon.losses import EmbeddingSmoothness, rgb_loss, thermal_loss
+from recon.gaussians import extend_knots, init_gaussians, knn_mean_sq_dist, trajectory_knots
+from recon.losses import EmbeddingSmoothness, rgb_loss, thermal_loss, trimmed_l1
 from recon.model import DTGModel, check_params, time_rows
+from recon.motion import connected_clusters
+from recon.curriculum import TimeWindow, extrapolate_rows, place_bases
 from recon.checkpoint import PREVIOUS_CHECKPOINT, read_checkpoint
 from recon.guard import DivergenceGuard, Event, TrainingDiverged, nonfinite_parameter
-from recon.points import changing_points, initial_temperatures
+from recon.points import changing_points, initial_temperatures, observed_time
 from recon.priors import MotionPriors
 from recon.schedule import Schedule
 from recon.render import inference_masks, render
@@ -92,6 +94,7 @@ class Trainer:
         self._hold_over = False
         self.progress_fn = None    # live training (recon.follow) drives the schedule itself
         self.holdout = self._holdout_views()
+        self.window = TimeWindow(cfg.curriculum, scene.times, cfg.iterations)
         if self.cfg.stop.converge and not self.validation_times:
             self.schedule.release("no held-out time steps to judge convergence (fewer than "
                                   f"{cfg.stop.validation_every // 2 + 1}): the nominal schedule")
@@ -109,18 +112,59 @@ class Trainer:
         if len(pts) > self.cfg.max_points:
             keep = torch.randperm(len(pts), generator=self.gen)[: self.cfg.max_points]
             pts, rgb = pts[keep], rgb[keep]
-        temps = initial_temperatures(self.scene, pts) if "thermal" in self.cfg.model.modalities else None
         n_times = self.scene.steps_per_unit_time()
         m = self.cfg.model
+        bases = m.motion_bases and m.deformation != "none"
         dynamic = changing_points(self.scene, pts, m.split_rgb, m.split_kelvin, m.split_fraction) \
-            if m.motion_split else None
+            if m.motion_split or bases else None
         if dynamic is not None:
             self.log(f"static/dynamic split: {int(dynamic.sum())} of {len(pts)} initial points see a "
                      f"changing scene and may move")
+        basis, pivots = None, None
+        if bases:
+            pts, rgb, dynamic, basis, pivots = self._motion_init(pts, rgb, dynamic)
+        temps = initial_temperatures(self.scene, pts) if "thermal" in self.cfg.model.modalities else None
         params = init_gaussians(pts, rgb, temps, m, self.cfg.routing, self.gen,
-                                trajectory_knots(m, n_times), dynamic)
+                                trajectory_knots(m, n_times), dynamic if m.motion_split else None, basis)
         bgs = {m: initial_background(self.scene, m) for m in self.cfg.model.modalities}
-        return DTGModel(self.cfg.model, params, n_times=n_times, backgrounds=bgs)
+        return DTGModel(self.cfg.model, params, n_times=n_times, backgrounds=bgs, pivots=pivots)
+
+    def _motion_init(self, pts, rgb, dynamic):
+        """Motion bases from the initial points: the moving points as seen at one instant, one
+        rigid basis per spatially connected group of them (recon/motion.py). Points of moving
+        things seen at other instants (ghosts along their paths) are dropped: from that instant
+        on they would be in the wrong place. -> (points, colours, dynamic flags, basis (M,), pivots)"""
+        m, c = self.cfg.model, self.cfg.curriculum
+        flagged = dynamic.clone()
+        seen = observed_time(self.scene, pts[flagged], rgb[flagged]) if flagged.any() else None
+        if seen is not None:
+            t_seen, matched = seen
+            if c.center < 0:
+                c.center = t_seen
+                self.log(f"the moving points match the views best at t = {t_seen:.3f}: motion is learned "
+                         f"outwards from there")
+            ghosts = flagged.nonzero()[:, 0][~matched]
+            keep = torch.ones(len(pts), dtype=torch.bool)
+            keep[ghosts] = False
+            pts, rgb, dynamic, flagged = pts[keep], rgb[keep], dynamic[keep], flagged[keep]
+            self.log(f"{len(ghosts)} moving points seen at other instants dropped")
+        basis = torch.zeros(len(pts))
+        index = flagged.nonzero()[:, 0]
+        if len(index) < max(m.basis_points // 5, 3):
+            self.log("motion bases: no moving points; every Gaussian is static")
+            return pts, rgb, dynamic, basis, torch.zeros(0, 3)
+        spacing = knn_mean_sq_dist(pts[index], k=1).sqrt().median()
+        labels = connected_clusters(pts[index], float(3 * spacing))
+        sizes = torch.bincount(labels)
+        usable = [k for k in range(len(sizes)) if sizes[k] >= max(m.basis_points // 5, 3)][: m.motion_bases]
+        if not usable:
+            self.log("motion bases: the moving points form no body; every Gaussian is static")
+            return pts, rgb, dynamic, basis, torch.zeros(0, 3)
+        pivots = torch.stack([pts[index][labels == k].mean(0) for k in usable])
+        for b, k in enumerate(usable):
+            basis[index[labels == k]] = b + 1
+        self.log(f"motion bases: {len(usable)} rigid bodies from {int((basis > 0).sum())} moving points")
+        return pts, rgb, dynamic, basis, pivots
 
     def _base_lr(self, key: str) -> float:
         lr = self.cfg.lr
@@ -151,6 +195,12 @@ class Trainer:
                            "lr": self.cfg.lr.deformation_scene[0] * self.extent})
             groups.append({"params": list(self.model.time_embedding.parameters()), "name": "time_embedding",
                            "lr": self.cfg.lr.time_embedding[0]})
+        if self.model.motion is not None:
+            lr = self.cfg.lr
+            groups.append({"params": [self.model.motion.rotation], "name": "motion_rotation",
+                           "lr": lr.motion_rotation[0]})
+            groups.append({"params": [self.model.motion.translation], "name": "motion_translation",
+                           "lr": lr.motion_translation_scene[0] * self.extent})
         groups.append({"params": list(self.model.backgrounds.parameters()), "name": "backgrounds",
                        "lr": self.cfg.lr.thermal_background, "base_lr": self.cfg.lr.thermal_background})
         return torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)
@@ -184,6 +234,7 @@ class Trainer:
         When the time steps grew at least twice as dense, the time embedding is refined to match."""
         self.scene = scene
         self.holdout = self._holdout_views()
+        self.window = TimeWindow(self.cfg.curriculum, scene.times, self.cfg.iterations)
         if self.cfg.model.deformation != "none":
             want = time_rows(self.cfg.model, scene.steps_per_unit_time())[1]
             have = self.model.time_embedding.fine.shape[0]
@@ -199,12 +250,32 @@ class Trainer:
             return torch.cat([v, v.new_zeros(rows - v.shape[0], *v.shape[1:])])
         self._replace_time_tables(self.model.time_embedding.extended(factor), pad)
         self._resize_trajectories(lambda x, moment: extend_knots(x, factor, zero=moment))
+        self._resize_motion(lambda x, moment: extend_knots(x, factor, zero=moment))
 
     def refine_time(self, factor: int) -> None:
         """`factor` times more time-embedding rows (and trajectory knots) over the same span
         (TimeEmbedding.refined); Adam moments are interpolated like the rows."""
         self._replace_time_tables(self.model.time_embedding.refined(factor), resample_rows)
-        self._resize_trajectories(lambda x, _: resample_rows(x, (x.shape[1] - 1) * factor + 1, dim=1))
+        refine = lambda x, _: resample_rows(x, (x.shape[1] - 1) * factor + 1, dim=1)  # noqa: E731
+        self._resize_trajectories(refine)
+        self._resize_motion(refine)
+
+    @torch.no_grad()
+    def _resize_motion(self, fn) -> None:
+        """fn(knots (B, K, 3), is_moment) -> (B, K', 3) for the motion bases and their Adam moments."""
+        motion = self.model.motion
+        if motion is None:
+            return
+        for name in ("rotation", "translation"):
+            old = getattr(motion, name)
+            param = torch.nn.Parameter(fn(old.detach(), False).clone())
+            group = next(g for g in self.optimizer.param_groups if g["name"] == f"motion_{name}")
+            group["params"] = [param]
+            state = self.optimizer.state.pop(old, {})
+            if state:
+                self.optimizer.state[param] = {k: (fn(v, True) if torch.is_tensor(v) and v.dim() == 3 else v)
+                                               for k, v in state.items()}
+            setattr(motion, name, param)
 
     def _resize_trajectories(self, fn) -> None:
         """fn(knots (N, K, 3), is_moment) -> (N, K', 3) for the trajectory and its Adam moments."""
@@ -261,6 +332,10 @@ class Trainer:
                 value = log_lerp(*lr.trajectory_scene, p) * self.extent
             elif group["name"] == "deformation":
                 value = log_lerp(*lr.deformation_scene, p) * self.extent * warm
+            elif group["name"] == "motion_rotation":
+                value = log_lerp(*lr.motion_rotation, p)
+            elif group["name"] == "motion_translation":
+                value = log_lerp(*lr.motion_translation_scene, p) * self.extent
             elif group["name"] == "time_embedding":
                 value = log_lerp(*lr.time_embedding, p) * warm
             else:
@@ -316,7 +391,11 @@ class Trainer:
             background = torch.rand(self.model.backgrounds[modality].shape, generator=self.gen)
         image, out, g = render(self.model, modality, t, view.camera, p, sh_degree=self.active_sh_degree(modality, p),
                                mask=mask, rgb_geometry=rgb_geometry, background=background)
-        if modality == "rgb":
+        if not self.window.contains(t):
+            keep = self.cfg.curriculum.outside_keep
+            rec = trimmed_l1(image, target, None, keep) if modality == "rgb" else \
+                self.cfg.loss.thermal_l1 * trimmed_l1(image[..., 0], target, valid, keep)
+        elif modality == "rgb":
             rec = rgb_loss(image, target, self.cfg.loss.rgb_dssim)
         else:
             rec = self.cfg.loss.thermal_l1 * thermal_loss(image[..., 0], target, valid)
@@ -340,6 +419,10 @@ class Trainer:
             e = self.smoothness(model.gaussians["means"], [model.gaussians[k] for k in keys], self.gen)
             reg = reg + cfg.embedding_smoothness * e
             stats["embed"] = float(e.detach())
+        if model.motion is not None and self.cfg.priors.basis_smoothness > 0:
+            acc = model.motion.smoothness(self.extent)
+            reg = reg + self.cfg.priors.basis_smoothness * acc
+            stats["basis_acc"] = float(acc.detach())
         if self.cfg.model.deformation != "none" and cfg.time_smoothness > 0:
             tv = model.time_embedding.temporal_smoothness()
             reg = reg + cfg.time_smoothness * tv
@@ -351,7 +434,15 @@ class Trainer:
         start = time.perf_counter()
         p = self.progress()
         self._update_lrs(p)
-        t = self.train_times[int(torch.randint(len(self.train_times), (1,), generator=self.gen))]
+        # the window's clock: iterations, or the share of a --minutes budget when iterations are
+        # slow (so the window is whole by `complete_by` of the time, whatever the pace)
+        taken_in = self.window.update(max(self.iteration, int(p * self.cfg.iterations)))
+        if taken_in:            # (all knots start at rest: nothing to carry on before)
+            self._extrapolate(*self.window.span())
+            if self.cfg.curriculum.search and self.model.motion is not None:
+                for side, when in taken_in:
+                    self._place(when, side)
+        t = self.window.pick(self.train_times, self.gen)
         mods = [m for m in ("rgb", "thermal") if m in self.cfg.model.modalities and self.scene.views_at(m, t)]
         noise = self._routing_noise(p)
         stats, rgb_geometry = {}, None
@@ -372,6 +463,30 @@ class Trainer:
             self.schedule.advance(self.iteration, self.elapsed)
             self._after_hold()
         return stats
+
+    def _place(self, t: float, side: str) -> None:
+        """Search where the motion bases are at a newly taken-in time step (recon/curriculum.py)."""
+        frames = []
+        for m in self.cfg.model.modalities:
+            for view in self.scene.views_at(m, t):
+                target, valid = self.scene.target(view)
+                frames.append((m, view, target, valid))
+        place_bases(self.model, frames, t, side)
+
+    @torch.no_grad()
+    def _extrapolate(self, lo: float, hi: float) -> None:
+        """Time rows beyond the window continue its edges (recon/curriculum.py)."""
+        if self.cfg.curriculum.grow_every <= 0 or self.cfg.model.deformation == "none":
+            return
+        g = self.model.gaussians
+        if "trajectory" in g:
+            extrapolate_rows(g["trajectory"].data, lo, hi, dim=1, velocity=True)
+        if self.model.motion is not None:
+            extrapolate_rows(self.model.motion.rotation.data, lo, hi, dim=1, velocity=True)
+            extrapolate_rows(self.model.motion.translation.data, lo, hi, dim=1, velocity=True)
+        te = self.model.time_embedding
+        for table in (te.coarse, te.fine):
+            extrapolate_rows(table.data, lo, hi, dim=0, velocity=False)
 
     def _after_hold(self) -> None:
         """Once the schedule's hold has ended: say why, and train on the held-out time steps too
@@ -457,7 +572,9 @@ class Trainer:
         self._window = (getattr(self, "_window", []) + [time.perf_counter() - t0])[-50:]
         self._last = {**getattr(self, "_last", {}), **{k: v for k, v in stats.items() if k.startswith("loss_")}}
         it = self.iteration
-        blow_up = self.guard.check_step(stats)
+        # While the time window grows, each new time step raises the loss by design: the loss
+        # rule would read that as a blow-up (non-finite values are still caught).
+        blow_up = self.guard.check_step(stats, ratio=self.window.complete)
         if blow_up is None and it % 25 == 0:
             bad = nonfinite_parameter(self.model)
             blow_up = f"parameter {bad} is not finite" if bad else None
@@ -517,7 +634,7 @@ class Trainer:
         position over time, in scene extents; None for a static model."""
         stage = self.model.motion_stage()
         n = self.model.num_gaussians
-        if stage is None or n == 0:
+        if (stage is None and self.model.motion is None) or n == 0:
             return None
         idx = torch.randperm(n, generator=torch.Generator().manual_seed(self.iteration))[:sample]
         mu = self.model.gaussians["means"][idx]

@@ -94,7 +94,7 @@ def test_a_drifting_deformation_is_caught_although_the_loss_looks_healthy(scene)
     assert guard.check_motion(None) is None and guard.check_motion(0.01) is None
     assert "moves the median Gaussian 0.6 scene extents" in guard.check_motion(0.6)
 
-    cfg = small_cfg(iterations=60)
+    cfg = small_cfg("dtg-mlp", iterations=60)     # the paper's dtg: a network moves geometry
     cfg.eval_every = 20
     cfg.guard = GuardConfig(window=40, patience=6, snapshot_every=20)
     tr = Trainer(cfg, scene, log=lambda _: None)

@@ -34,12 +34,14 @@ def small_cfg(method="dtg", **kw):
 def test_dtg_loss_falls_and_heldout_psnr_rises(scene):
     tr = Trainer(small_cfg(iterations=120), scene, log=lambda _: None)
     before = tr.holdout_psnr()
-    first = [tr.step() for _ in range(10)]
+    steps = []
     while not tr.done():
-        last = tr.step()
+        steps.append(tr.step())
     after = tr.holdout_psnr()
-    early = sum(s["loss_rgb"] + s["loss_thermal"] for s in first) / len(first)
-    assert last["loss_rgb"] + last["loss_thermal"] < 0.8 * early
+    # means over 10 iterations: one iteration's loss depends on the view it drew
+    early, late = (sum(s["loss_rgb"] + s["loss_thermal"] for s in part) / len(part)
+                   for part in (steps[:10], steps[-10:]))
+    assert late < 0.8 * early, (early, late)
     # stated margins: +1.5 dB RGB and +3 dB thermal on the held-out (test-rig) view in 120 iterations
     assert after["rgb"] > before["rgb"] + 1.5, (before, after)
     assert after["thermal"] > before["thermal"] + 3.0, (before, after)

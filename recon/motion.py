@@ -1,0 +1,141 @@
+"""Rigid motion bases: what moves, moves as a body along a path (Shape of Motion's low-rank
+SE(3) motion, with one basis per Gaussian).
+
+A moving object of the scene family is a rigid body: every point of it follows the same rotation
+and translation. A deformation network or per-Gaussian trajectories give each Gaussian its own
+path; with one view per instant nothing then ties the Gaussians of one object together, and each
+can slide along its training ray (right in the training view, smeared from any other). Here
+moving Gaussians belong to one of B bases, each an SE(3) trajectory: a rotation (axis-angle)
+and a translation per time knot, about a fixed pivot (the centre of the Gaussians it was built
+from). All pixels of an object then pull on the same six numbers per instant, its shape is shared
+by every instant, and so its apparent size and its RGB-thermal parallax fix its depth.
+
+Per Gaussian (``recon/gaussians.py``): ``motion_basis`` (N,) the basis index, 0 = static (not
+learned; children of a densified Gaussian inherit it), and the gate ``dynamic_logit`` (N,): a
+Gaussian moves by sigmoid(gate) of its basis' motion, so a background point that was put in a
+basis (it lay on a moving object's path) can learn to stay.
+"""
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from recon.time_embedding import lerp_rows
+
+
+def axis_angle_to_matrix(v: torch.Tensor) -> torch.Tensor:
+    """Rodrigues. v: (..., 3) axis * angle -> (..., 3, 3); smooth at 0."""
+    theta2 = (v * v).sum(-1, keepdim=True)
+    theta = theta2.clamp_min(1e-12).sqrt()
+    small = theta2 < 1e-8
+    a = torch.where(small, 1 - theta2 / 6, torch.sin(theta) / theta)            # sin(t)/t
+    b = torch.where(small, 0.5 - theta2 / 24, (1 - torch.cos(theta)) / theta2.clamp_min(1e-12))
+    x, y, z = v.unbind(-1)
+    zero = torch.zeros_like(x)
+    k = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).view(*v.shape[:-1], 3, 3)
+    eye = torch.eye(3, dtype=v.dtype).expand(k.shape)
+    return eye + a[..., None] * k + b[..., None] * (k @ k)
+
+
+def axis_angle_to_quat(v: torch.Tensor) -> torch.Tensor:
+    """(..., 3) -> (..., 4) wxyz unit quaternion."""
+    theta2 = (v * v).sum(-1, keepdim=True)
+    theta = theta2.clamp_min(1e-12).sqrt()
+    half = 0.5 * theta
+    s = torch.where(theta2 < 1e-8, 0.5 - theta2 / 48, torch.sin(half) / theta)
+    return torch.cat([torch.cos(half), v * s], -1)
+
+
+def quat_multiply(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton product of wxyz quaternions (..., 4)."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack([aw * bw - ax * bx - ay * by - az * bz,
+                        aw * bx + ax * bw + ay * bz - az * by,
+                        aw * by - ax * bz + ay * bw + az * bx,
+                        aw * bz + ax * by - ay * bx + az * bw], -1)
+
+
+class MotionBases(nn.Module):
+    """B rigid trajectories over K time knots: rotation (B, K, 3) axis-angle about pivots (B, 3)
+    and translation (B, K, 3), linear between knots; all identity at start."""
+
+    def __init__(self, pivots: torch.Tensor, knots: int):
+        super().__init__()
+        b = pivots.shape[0]
+        self.register_buffer("pivots", pivots.clone().float())
+        self.rotation = nn.Parameter(torch.zeros(b, knots, 3))
+        self.translation = nn.Parameter(torch.zeros(b, knots, 3))
+
+    @property
+    def count(self) -> int:
+        return self.pivots.shape[0]
+
+    def at(self, t: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """(rotation (B, 3) axis-angle, translation (B, 3)) at time t."""
+        return lerp_rows(self.rotation, t, dim=1), lerp_rows(self.translation, t, dim=1)
+
+    def smoothness(self, extent: float) -> torch.Tensor:
+        """Squared second difference of rotation (rad) and translation (in scene extents), summed
+        over bases and averaged over knots: each basis' acceleration, whatever the basis count.
+
+        It is what fixes a moving object's depth. With one view per instant, an object scaled by s
+        about the camera, X'(t) = s X(t) + (1 - s) C(t), looks the same in every training frame; a
+        handheld camera centre C(t) accelerates far more than the objects it films, so only s = 1
+        keeps the trajectory smooth."""
+        if self.rotation.shape[1] < 3:
+            return self.rotation.sum() * 0
+        acc = lambda x: (x[:, 2:] - 2 * x[:, 1:-1] + x[:, :-2]).pow(2).sum(-1).mean(1).sum()  # noqa: E731
+        return acc(self.rotation) + acc(self.translation / extent)
+
+
+def apply_motion(means: torch.Tensor, quats: torch.Tensor, basis: torch.Tensor, gate: torch.Tensor,
+                 bases: MotionBases, t: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Move Gaussians with their basis at time t.
+
+    means (N, 3), quats (N, 4) wxyz, basis (N,) float index (0 = static, b >= 1 = bases row b-1),
+    gate (N,) in [0, 1]. Returns moved (means, quats); static Gaussians are returned unchanged."""
+    idx = basis.long()
+    moving = (idx > 0).nonzero()[:, 0]
+    if moving.numel() == 0:
+        return means, quats
+    rot, trans = bases.at(t)
+    b = idx[moving] - 1
+    r = axis_angle_to_matrix(rot)[b]                                  # (M, 3, 3)
+    piv = bases.pivots[b]
+    mu = means[moving]
+    moved = torch.einsum("mij,mj->mi", r, mu - piv) + piv + trans[b]
+    g = gate[moving, None]
+    new_mu = mu + g * (moved - mu)
+    q = quats[moving]
+    qr = quat_multiply(axis_angle_to_quat(rot * 1.0)[b], q)
+    new_q = q + g * (qr - q)
+    means = means.index_copy(0, moving, new_mu)
+    quats = quats.index_copy(0, moving, new_q)
+    return means, quats
+
+
+def connected_clusters(points: torch.Tensor, radius: float) -> torch.Tensor:
+    """Single-linkage clusters: points closer than `radius` (through a chain of such points) share
+    a label. points (M, 3) -> labels (M,) in [0, clusters), largest cluster first."""
+    m = points.shape[0]
+    parent = list(range(m))
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for start in range(0, m, 1024):
+        close = (torch.cdist(points[start:start + 1024], points) < radius).nonzero().tolist()
+        for i, j in close:
+            a, b = find(start + i), find(j)
+            if a != b:
+                parent[max(a, b)] = min(a, b)
+    roots = torch.tensor([find(i) for i in range(m)])
+    _, inverse, counts = torch.unique(roots, return_inverse=True, return_counts=True)
+    order = torch.argsort(counts, descending=True)
+    rank = torch.empty_like(order)
+    rank[order] = torch.arange(len(order))
+    return rank[inverse]

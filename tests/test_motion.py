@@ -1,0 +1,148 @@
+"""Rigid motion bases (recon/motion.py) and the growing time window (recon/curriculum.py)."""
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from recon.curriculum import extrapolate_rows, window_bounds
+from recon.gaussians import quat_to_rotmat
+from recon.motion import (MotionBases, apply_motion, axis_angle_to_matrix, axis_angle_to_quat, connected_clusters,
+                          quat_multiply)
+
+
+def rodrigues_reference(v: np.ndarray) -> np.ndarray:
+    """Rotation matrix of an axis-angle vector from the axis and angle (float64)."""
+    angle = np.linalg.norm(v)
+    if angle == 0:
+        return np.eye(3)
+    k = v / angle
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(angle) * kx + (1 - math.cos(angle)) * kx @ kx
+
+
+def test_axis_angle_matches_reference_and_quaternion():
+    gen = torch.Generator().manual_seed(0)
+    v = torch.randn(64, 3, generator=gen) * 1.5
+    v[0] = 0.0
+    v[1] = torch.tensor([1e-6, -2e-6, 0.5e-6])
+    r = axis_angle_to_matrix(v.double())
+    for i in range(len(v)):
+        np.testing.assert_allclose(r[i].numpy(), rodrigues_reference(v[i].double().numpy()), atol=1e-10)
+    q = axis_angle_to_quat(v.double())
+    np.testing.assert_allclose(quat_to_rotmat(q).numpy(), r.numpy(), atol=1e-10)
+
+
+def test_axis_angle_gradient_is_finite_at_zero():
+    v = torch.zeros(2, 3, dtype=torch.double, requires_grad=True)
+    (axis_angle_to_matrix(v).sum() + axis_angle_to_quat(v).sum()).backward()
+    assert torch.isfinite(v.grad).all()
+    assert torch.autograd.gradcheck(axis_angle_to_matrix, (torch.randn(3, 3, dtype=torch.double, requires_grad=True),))
+
+
+def test_quat_multiply_composes_rotations():
+    gen = torch.Generator().manual_seed(1)
+    a, b = axis_angle_to_quat(torch.randn(5, 3, generator=gen)), axis_angle_to_quat(torch.randn(5, 3, generator=gen))
+    torch.testing.assert_close(quat_to_rotmat(quat_multiply(a, b)), quat_to_rotmat(a) @ quat_to_rotmat(b),
+                               atol=1e-5, rtol=1e-5)
+
+
+def test_basis_motion_is_rigid_and_static_gaussians_stay():
+    gen = torch.Generator().manual_seed(2)
+    means = torch.randn(30, 3, generator=gen)
+    quats = torch.nn.functional.normalize(torch.randn(30, 4, generator=gen), dim=1)
+    basis = torch.tensor([0.0] * 10 + [1.0] * 10 + [2.0] * 10)
+    bases = MotionBases(torch.tensor([[0.0, 0, 0], [1.0, 2, 3]]), knots=5)
+    with torch.no_grad():
+        bases.rotation[:, 2] = torch.tensor([[0.3, -0.2, 0.9], [0.0, 0.0, 1.2]])
+        bases.translation[:, 2] = torch.tensor([[1.0, 0, 0], [0, -2.0, 0.5]])
+    moved, mq = apply_motion(means, quats, basis, torch.ones(30), bases, t=0.5)
+    torch.testing.assert_close(moved[:10], means[:10])
+    torch.testing.assert_close(mq[:10], quats[:10])
+    for sl, b in ((slice(10, 20), 0), (slice(20, 30), 1)):
+        d0 = torch.cdist(means[sl], means[sl])
+        torch.testing.assert_close(torch.cdist(moved[sl], moved[sl]), d0, atol=1e-5, rtol=1e-5)
+        r = axis_angle_to_matrix(bases.rotation[b, 2])
+        expect = (means[sl] - bases.pivots[b]) @ r.T + bases.pivots[b] + bases.translation[b, 2]
+        torch.testing.assert_close(moved[sl], expect.detach(), atol=1e-5, rtol=1e-5)
+        # the Gaussian's own rotation turns with its body
+        torch.testing.assert_close(quat_to_rotmat(mq[sl]), r.detach() @ quat_to_rotmat(quats[sl]), atol=1e-5, rtol=1e-5)
+    # gate 0: stays; between knots: linear in the knots
+    still, _ = apply_motion(means, quats, basis, torch.zeros(30), bases, t=0.5)
+    torch.testing.assert_close(still, means)
+    half, _ = apply_motion(means, quats, basis, torch.ones(30), bases, t=0.375)
+    torch.testing.assert_close(half[10:20] - means[10:20],
+                               0.5 * (moved[10:20] - means[10:20]) + 0 * half[10:20], atol=0.25, rtol=0)
+
+
+def test_smoothness_is_zero_for_constant_velocity():
+    bases = MotionBases(torch.zeros(1, 3), knots=6)
+    with torch.no_grad():
+        bases.translation[0] = torch.arange(6.0)[:, None] * torch.tensor([0.1, 0.2, -0.3])
+        bases.rotation[0] = torch.arange(6.0)[:, None] * torch.tensor([0.0, 0.05, 0.0])
+    assert float(bases.smoothness(extent=2.0).detach()) < 1e-12
+    with torch.no_grad():
+        bases.translation[0, 3] += 0.5
+    assert float(bases.smoothness(extent=2.0).detach()) > 1e-3
+
+
+def test_connected_clusters_are_objects():
+    gen = torch.Generator().manual_seed(3)
+    centres = torch.tensor([[0.0, 0, 0], [5.0, 0, 0], [0, 5.0, 0]])
+    sizes = (50, 30, 10)
+    pts = torch.cat([c + 0.2 * torch.rand(n, 3, generator=gen) for c, n in zip(centres, sizes)])
+    labels = connected_clusters(pts, radius=0.5)
+    assert labels[:50].eq(0).all() and labels[50:80].eq(1).all() and labels[80:].eq(2).all()   # largest first
+    # a chain of close points is one body, however long
+    chain = torch.stack([torch.tensor([0.3 * i, 0.0, 0.0]) for i in range(20)])
+    assert connected_clusters(chain, radius=0.35).eq(0).all()
+    assert len(set(connected_clusters(chain, radius=0.25).tolist())) == 20
+
+
+def test_window_grows_from_its_centre():
+    assert window_bounds(0, 40, 0.5, 3, grow_every=0) == (0, 39)
+    assert window_bounds(0, 40, 0.5, 3, grow_every=10, hold=100) == (17, 23)
+    assert window_bounds(99, 40, 0.5, 3, grow_every=10, hold=100) == (17, 23)
+    assert window_bounds(120, 40, 0.5, 3, grow_every=10, hold=100) == (15, 25)
+    assert window_bounds(10_000, 40, 0.5, 3, grow_every=10, hold=100) == (0, 39)
+    assert window_bounds(50, 40, 0.0, 1, grow_every=10) == (0, 6)
+
+
+def test_rows_beyond_the_window_continue_its_edges():
+    table = torch.zeros(2, 9, 3)
+    table[:, 3:6] = torch.arange(3.0)[None, :, None] * torch.tensor([1.0, -2.0, 0.5])   # rows 3..5 move
+    extrapolate_rows(table, 3 / 8, 5 / 8, dim=1)
+    expect = torch.arange(-3.0, 6.0)[:, None] * torch.tensor([1.0, -2.0, 0.5])
+    torch.testing.assert_close(table[0], expect)
+    copy = torch.arange(9.0)[:, None].repeat(1, 2)
+    extrapolate_rows(copy, 2 / 8, 4 / 8, velocity=False)
+    assert copy[:2].eq(2.0).all() and copy[5:].eq(4.0).all() and copy[2:5, 0].tolist() == [2.0, 3.0, 4.0]
+
+
+def test_window_draws_edges_outside_and_inside():
+    from recon.config import CurriculumConfig
+    from recon.curriculum import TimeWindow
+    times = [i / 19 for i in range(20)]
+    w = TimeWindow(CurriculumConfig(grow_every=10, center=0.5, start_steps=2, hold=0, edge_weight=0.5,
+                                    outside=0.2), times)
+    assert w.update(0) == [] and w.bounds == (8, 12)
+    assert w.update(10) == [("lo", times[7]), ("hi", times[13])] and w.update(15) == []
+    gen = torch.Generator().manual_seed(0)
+    picks = [w.pick(times, gen) for _ in range(4000)]
+    outside = sum(not w.contains(t) for t in picks) / len(picks)
+    edges = sum(t in (times[7], times[13]) for t in picks) / len(picks)
+    assert abs(outside - 0.2) < 0.03 and abs(edges - (0.4 + 0.4 * 2 / 7)) < 0.04
+    w.update(10_000)
+    assert w.complete and w.contains(0.0) and w.contains(1.0)
+
+
+def test_trimmed_l1_ignores_the_worst_pixels():
+    from recon.losses import trimmed_l1
+    gt = torch.zeros(10, 10)
+    pred = torch.full((10, 10), 0.1)
+    pred[0, :5] = 5.0                        # a moving object the model has not placed: 5 % of pixels
+    assert abs(float(trimmed_l1(pred, gt, None, keep=0.9)) - 0.1) < 1e-6
+    assert float(trimmed_l1(pred, gt, None, keep=1.0)) > 0.3
+    valid = torch.ones(10, 10, dtype=torch.bool)
+    valid[0] = False
+    assert abs(float(trimmed_l1(pred, gt, valid, keep=1.0)) - 0.1) < 1e-6
