@@ -13,7 +13,8 @@ from recon.config import make_config
 from recon.data import load_dataset
 from recon.data.simulate import SimulateConfig, simulate_dataset
 from recon.eval.evaluate import moving_masks
-from recon.render import render_frame
+from recon.losses import thermal_loss
+from recon.render import render, render_frame
 from recon.scene import Scene
 from recon.train import Trainer
 
@@ -57,3 +58,29 @@ def test_motion_bases_follow_a_moving_box_the_network_smears(scene):
     assert bases.model.motion is not None and network.model.motion is None
     with_bases, with_network = moving_error_k(bases), moving_error_k(network)
     assert with_bases < 0.5 * with_network, (with_bases, with_network)
+
+
+def test_thermal_loss_moves_the_bodies_rgb_loss_moves_too(scene):
+    """Thermal can drive motion RGB does not see (issue 13): the bases are shared by both stages and
+    each stage recomputes them with its graph, so a thermal-only loss reaches every body's knots.
+    In dtg-mlp the thermal stage reuses F_rgb's geometry detached: no thermal gradient reaches it."""
+    cfg = make_config("dtg", iterations=500, log_every=10**9, checkpoint_every=10**9, eval_every=10**9)
+    trainer = Trainer(cfg, scene, log=lambda _: None)
+    motion = trainer.model.motion
+    assert motion is not None
+    view = trainer.scene.train["thermal"][len(trainer.scene.train["thermal"]) // 2]
+    target, valid = trainer.scene.target(view)
+    with torch.no_grad():       # every body away from its pivot instant, so the render depends on it
+        motion.translation.add_(0.01 * trainer.extent)
+    image = render(trainer.model, "thermal", view.time, view.camera)[0]
+    thermal_loss(image[..., 0], target, valid).backward()
+    moved = motion.translation.grad.abs().sum(dim=(1, 2))
+    assert (moved > 0).float().mean() >= 0.5, moved      # most bodies are in this view
+
+    mlp = Trainer(make_config("dtg-mlp", iterations=500, log_every=10**9, checkpoint_every=10**9,
+                              eval_every=10**9), scene, log=lambda _: None)
+    first = mlp.model.stage_residuals("rgb", view.time, 1.0)
+    image = render(mlp.model, "thermal", view.time, view.camera, rgb_geometry=first)[0]
+    thermal_loss(image[..., 0], target, valid).backward()
+    rgb_net = [p for n, p in mlp.model.named_parameters() if n.startswith("deformers.rgb.")]
+    assert rgb_net and all(p.grad is None or not p.grad.any() for p in rgb_net)
