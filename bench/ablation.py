@@ -1,4 +1,4 @@
-"""The motion-prior ladder: each switch of recon/priors.py (and the model's motion options) on
+"""The motion-prior ladder: each switch of recon/dtg/priors.py (and the model's motion options) on
 family scenes at a fixed iteration count, graded per region, with its cost per iteration.
 
     python bench/ablation.py --out bench/results/ablation --scenes family-inside,family-outside \\
@@ -35,7 +35,7 @@ from recon.eval.evaluate import moving_masks  # noqa: E402
 from recon.render import render_frame  # noqa: E402
 from recon.run import evaluate_model  # noqa: E402
 from recon.scene import Scene  # noqa: E402
-from recon.train import Trainer  # noqa: E402
+from recon.train.trainer import Trainer  # noqa: E402
 from table import apply_overrides, flatten, parse_seeds, parse_variant  # noqa: E402
 
 PRIORS = {"priors.rigidity": 4, "priors.smoothness": 100}

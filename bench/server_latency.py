@@ -128,7 +128,7 @@ def make_scene(root: Path, size: str, frames: int):
 
 def make_trainer(scene, iterations: int):
     from recon.config import make_config
-    from recon.train import Trainer
+    from recon.train.trainer import Trainer
     cfg = make_config("dtg", iterations=iterations, eval_every=10**9, log_every=10**9, checkpoint_every=10**9)
     return Trainer(cfg, scene, log=lambda _: None)
 
@@ -142,7 +142,7 @@ def throughput(scene, session: Path, run_dir: Path, blocks: int, block_s: float,
     threads), which other machines' jobs disturb less than wall-clock rates; it does not count the
     browser's own CPU, which the wall-clock rate does."""
     import server
-    from recon.publish import LivePublisher, TrainingFeed
+    from recon.live.publish import LivePublisher, TrainingFeed
 
     tr = make_trainer(scene, 10**6)
     for _ in range(5):
@@ -230,7 +230,7 @@ def main() -> int:
         return 0
 
     import server
-    from recon.publish import LivePublisher, TrainingFeed
+    from recon.live.publish import LivePublisher, TrainingFeed
 
     tmp = Path(tempfile.mkdtemp(prefix="server_bench_"))
     session = Path(args.session) if args.session else tmp / "session"

@@ -44,7 +44,7 @@ from recon.data import load_dataset  # noqa: E402
 from recon.data.simulate import SimulateConfig, simulate_dataset  # noqa: E402
 from recon.run import evaluate_model, finish  # noqa: E402
 from recon.scene import Scene  # noqa: E402
-from recon.train import Trainer  # noqa: E402
+from recon.train.trainer import Trainer  # noqa: E402
 
 # Summary columns: (key, header, digits, higher is better)
 COLUMNS = [("psnr_rgb", "RGB PSNR", 2, True), ("psnr_rgb_moving", "RGB PSNR moving", 2, True),

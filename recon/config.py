@@ -67,7 +67,7 @@ class ModelConfig:
     # so the background cannot absorb motion. init_dynamic: the gates' starting logit.
     dynamic_gate: bool = False
     init_dynamic: float = -2.0
-    # A static/dynamic split read from the data before training (recon/points.py): an initial
+    # A static/dynamic split read from the data before training (recon/dtg/points.py): an initial
     # point may move only if what the training views see at it changes over time (RGB by more
     # than split_rgb, or temperature by more than split_kelvin, in more than split_fraction of
     # the views that see it): something moves there. Every other Gaussian keeps its place, so the
@@ -76,7 +76,7 @@ class ModelConfig:
     split_rgb: float = 0.2           # on 3 family scenes: 70 % of the points on moving objects
     split_kelvin: float = 12.0       # flagged, 20-43 % of the flagged ones on them (0.15/10/0.15:
     split_fraction: float = 0.2      # 84 % / 16 %; 0.25/15/0.25: 50 % / 50 %)
-    # Rigid motion bases (recon/motion.py): up to this many SE(3) trajectories, one per cluster of
+    # Rigid motion bases (recon/dtg/motion.py): up to this many SE(3) trajectories, one per cluster of
     # the initial points the static/dynamic test (split_* below) flags as seeing a changing scene;
     # every other Gaussian is static. 0: off.
     motion_bases: int = 0
@@ -142,7 +142,7 @@ class LossConfig:
 
 @dataclass
 class PriorConfig:
-    """Motion priors (recon/priors.py); a weight of 0 turns a term off."""
+    """Motion priors (recon/dtg/priors.py); a weight of 0 turns a term off."""
     rigidity: float = 0.0            # local rigidity over canonical k-NN (Luiten et al.: 4)
     isometry: float = 0.0            # neighbour distances kept (Luiten et al.: 2)
     rotation: float = 0.0            # neighbours rotate alike (Luiten et al.: 4)
@@ -209,7 +209,7 @@ class DensifyConfig:
 
 @dataclass
 class StopConfig:
-    """When a run ends (recon/schedule.py). ``converge``: the scene chooses the length: the
+    """When a run ends (recon/train/schedule.py). ``converge``: the scene chooses the length: the
     schedule holds at ``hold_at`` while held-out PSNR (every 8th training time step, kept out of
     training until then) still gains ``min_gain_db`` within ``patience`` evaluations, then runs
     its remaining (1 - hold_at) * iterations. Off: exactly ``iterations`` (or ``minutes``)."""
@@ -222,7 +222,7 @@ class StopConfig:
 
 @dataclass
 class GuardConfig:
-    """Divergence detection and rollback (recon/guard.py)."""
+    """Divergence detection and rollback (recon/train/guard.py)."""
     enabled: bool = True
     # A loss's median over the last `patience` iterations may not exceed `factor` x its median
     # over the `window` before them. Per-view losses are noisy (thermal ones bimodal: a hot object
@@ -244,10 +244,10 @@ class GuardConfig:
 
 @dataclass
 class CurriculumConfig:
-    """A training window that grows in time from ``center`` (recon/curriculum.py). 0: off."""
+    """A training window that grows in time from ``center`` (recon/train/curriculum.py). 0: off."""
     grow_every: int = 0               # iterations per time step the window grows on each side
     center: float = -1.0              # where it starts (fraction of the sequence); < 0: where the
-                                      # moving initial points match the views best (recon/points.py)
+                                      # moving initial points match the views best (recon/dtg/points.py)
     start_steps: int = 1              # half-width it starts with, in time steps...
     hold: int = 0                     # ...for this many iterations (at most 10 % of a run)
     complete_by: float = 0.4          # a short run grows faster: whole by this fraction of it
@@ -286,8 +286,8 @@ def _preset(**model) -> dict:
 
 
 # What dtg adds to the paper's E-D3DGS deformation: moving things move as rigid bodies
-# (recon/motion.py), learned outwards in time from the instant the initial points saw them
-# (recon/curriculum.py). The deformation networks keep what they are good at: F_th the change of
+# (recon/dtg/motion.py), learned outwards in time from the instant the initial points saw them
+# (recon/train/curriculum.py). The deformation networks keep what they are good at: F_th the change of
 # temperature (and thermal opacity) over time; geometry is the bases' alone, so F_rgb has nothing
 # left to predict. Chosen on family seeds 0-2 and 19 (never on the benchmark seeds 100-107), 3000
 # iterations, dtg with the E-D3DGS deformation ("dtg-mlp") -> this, median over inside-0/1/2,

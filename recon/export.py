@@ -6,8 +6,8 @@ from pathlib import Path
 
 import torch
 
-from recon import routing
-from recon.model import DTGModel
+from recon.dtg import routing
+from recon.dtg.model import DTGModel
 from recon.splat.ply import write_gaussians_ply
 
 

@@ -10,9 +10,9 @@ import numpy as np
 import torch
 from PIL import Image
 
-from recon import routing
-from recon.checkpoint import read_checkpoint
-from recon.model import DTGModel
+from recon.dtg import routing
+from recon.train.checkpoint import read_checkpoint
+from recon.dtg.model import DTGModel
 from recon.scene import Camera
 from recon.splat import rasterization
 from recon.data import viewmat_from_c2w_opengl

@@ -28,7 +28,7 @@ from PIL import Image
 from recon.config import DEFAULT_MINUTES, METHODS, config_to_dict, make_config
 from recon.data import load_dataset
 from recon.eval import evaluate_run, write_results
-from recon.publish import LivePublisher, TrainingFeed
+from recon.live.publish import LivePublisher, TrainingFeed
 from recon.eval.evaluate import frame_metrics, moving_masks
 from recon.eval.regions import RegionPool
 from recon.eval.renders import encode_render, write_render_pixels
@@ -36,8 +36,8 @@ from recon.export import export_deformation, export_ply, model_bytes
 from recon.prepare import REPORT_FILE, PrepareError, PrepareOptions, prepare_session
 from recon.render import render_frame
 from recon.scene import Scene
-from recon.guard import TrainingDiverged
-from recon.train import Trainer
+from recon.train.guard import TrainingDiverged
+from recon.train.trainer import Trainer
 from recon import viz
 from server.cli_options import add_serve_arguments, serve_from_args
 from rig.cli_format import positive_float, positive_int
@@ -237,7 +237,7 @@ def run(args: argparse.Namespace) -> int:
 
 def train_and_finish(args, inp: Path, out: Path, kind: str, overrides: dict, feed, log) -> int:
     if args.follow:
-        from recon.follow import FollowError, FollowOptions, follow
+        from recon.live.follow import FollowError, FollowOptions, follow
         cfg = config_from_args(args, overrides, live=True)
         try:
             trainer, data_dir = follow(inp, out, cfg, FollowOptions(after_iterations=args.after), log,

@@ -30,7 +30,7 @@ class View:
 
 class Scene:
     """time_of(frame) -> training time; default the dataset's normalised `time`. Live training
-    (`recon.follow`) passes timestamp_s / horizon so times stay put while the capture grows."""
+    (`recon.live.follow`) passes timestamp_s / horizon so times stay put while the capture grows."""
 
     def __init__(self, dataset: Dataset, time_of=None):
         self.dataset = dataset

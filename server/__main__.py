@@ -12,7 +12,7 @@ def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="python -m server", formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Serve the thermal4d status page: live renders, training progress and capture "
-                    "health, read from a run folder (RUN/live/, written by recon.publish) and a "
+                    "health, read from a run folder (RUN/live/, written by recon.live.publish) and a "
                     "session folder (written by `rig capture`). Either may still be empty or absent; "
                     "the page fills in as they are published.",
         epilog="examples:\n"

@@ -1,4 +1,4 @@
-"""Reads what a training run publishes in RUN/live/ (contract: recon/publish.py), with bounded memory.
+"""Reads what a training run publishes in RUN/live/ (contract: recon/live/publish.py), with bounded memory.
 
 Parsed JSON is cached per file and re-read only when the file's (inode, size, mtime) changes, so
 polling browsers cost a stat() per request. Only whitelisted files are ever opened: render files

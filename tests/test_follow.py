@@ -15,11 +15,11 @@ import torch
 from recon.config import make_config
 from recon.data import load_dataset
 from recon.data.simulate import SimulateConfig, simulate_dataset
-from recon.follow import FollowOptions, align_dataset, follow, similarity
+from recon.live.follow import FollowOptions, align_dataset, follow, similarity
 from recon.render import render_frame
 from recon.scene import Scene
-from recon.time_embedding import TimeEmbedding
-from recon.train import Trainer
+from recon.dtg.time_embedding import TimeEmbedding
+from recon.train.trainer import Trainer
 
 ROOT = Path(__file__).resolve().parents[1]
 

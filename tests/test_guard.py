@@ -1,13 +1,13 @@
 """Training never fails silently: blow-ups are detected, rolled back, logged, and a repeated one
-stops the run with an error (recon/guard.py, Trainer._rollback)."""
+stops the run with an error (recon/train/guard.py, Trainer._rollback)."""
 import math
 
 import pytest
 import torch
 
 from recon.config import GuardConfig
-from recon.guard import DivergenceGuard, TrainingDiverged
-from recon.train import Trainer
+from recon.train.guard import DivergenceGuard, TrainingDiverged
+from recon.train.trainer import Trainer
 
 from tests.test_train import small_cfg, tiny
 

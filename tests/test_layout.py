@@ -64,3 +64,16 @@ def test_rig_never_imports_recon():
     g = graph()
     offenders = {n: sorted(d for d in deps if d.startswith("recon")) for n, deps in g.items() if n.startswith("rig")}
     assert not {n: d for n, d in offenders.items() if d}
+
+
+def test_the_model_the_loop_and_live_operation_are_layers():
+    """recon/dtg (the model) never imports how it is trained (recon/train) or run live
+    (recon/live); the training loop never imports live operation; none of them imports the status
+    server, which only reads what recon publishes (the CLI layer, recon/run.py, starts it)."""
+    g = graph()
+    below = {"recon.dtg": ("recon.train", "recon.live", "recon.run", "server"),
+             "recon.train": ("recon.live", "recon.run", "server"),
+             "recon.live": ("recon.run", "server")}
+    wrong = {n: sorted(d for d in deps if d.startswith(forbidden))
+             for layer, forbidden in below.items() for n, deps in g.items() if n.startswith(layer + ".")}
+    assert not {n: d for n, d in wrong.items() if d}, wrong

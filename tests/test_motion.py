@@ -1,13 +1,12 @@
-"""Rigid motion bases (recon/motion.py) and the growing time window (recon/curriculum.py)."""
+"""Rigid motion bases (recon/dtg/motion.py) and the growing time window (recon/train/curriculum.py)."""
 import math
 
 import numpy as np
-import pytest
 import torch
 
-from recon.curriculum import extrapolate_rows, window_bounds
-from recon.gaussians import quat_to_rotmat
-from recon.motion import (MotionBases, apply_motion, axis_angle_to_matrix, axis_angle_to_quat, connected_clusters,
+from recon.train.curriculum import extrapolate_rows, window_bounds
+from recon.dtg.gaussians import quat_to_rotmat
+from recon.dtg.motion import (MotionBases, apply_motion, axis_angle_to_matrix, axis_angle_to_quat, connected_clusters,
                           quat_multiply)
 
 
@@ -121,7 +120,7 @@ def test_rows_beyond_the_window_continue_its_edges():
 
 def test_window_draws_edges_outside_and_inside():
     from recon.config import CurriculumConfig
-    from recon.curriculum import TimeWindow
+    from recon.train.curriculum import TimeWindow
     times = [i / 19 for i in range(20)]
     w = TimeWindow(CurriculumConfig(grow_every=10, center=0.5, start_steps=2, hold=0, edge_weight=0.5,
                                     outside=0.2), times)
@@ -137,7 +136,7 @@ def test_window_draws_edges_outside_and_inside():
 
 
 def test_trimmed_l1_ignores_the_worst_pixels():
-    from recon.losses import trimmed_l1
+    from recon.dtg.losses import trimmed_l1
     gt = torch.zeros(10, 10)
     pred = torch.full((10, 10), 0.1)
     pred[0, :5] = 5.0                        # a moving object the model has not placed: 5 % of pixels

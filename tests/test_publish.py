@@ -1,4 +1,4 @@
-"""recon.publish: the RUN/live/ contract the status server reads, and the trainer feed."""
+"""recon.live.publish: the RUN/live/ contract the status server reads, and the trainer feed."""
 import io
 import json
 import math
@@ -11,9 +11,9 @@ from PIL import Image
 from recon.config import make_config
 from recon.data import load_dataset
 from recon.data.simulate import SimulateConfig, simulate_dataset
-from recon.publish import KELVIN_SCALE, LivePublisher, TrainingFeed, thin
+from recon.live.publish import KELVIN_SCALE, LivePublisher, TrainingFeed, thin
 from recon.scene import Scene
-from recon.train import Trainer
+from recon.train.trainer import Trainer
 from recon.viz import thermal_image
 from server.run_reader import parse_jsonl
 
@@ -179,7 +179,7 @@ def test_status_of_live_training_has_no_fixed_budget(scene, tmp_path):
     feed = TrainingFeed(LivePublisher(tmp_path))
     feed.publish_status(tr)
     assert json.loads((tmp_path / "live" / "status.json").read_text())["iterations"] == 60
-    tr.progress_fn = lambda _: 0.25          # as recon.follow drives it while the capture grows
+    tr.progress_fn = lambda _: 0.25          # as recon.live.follow drives it while the capture grows
     feed.publish_status(tr)
     status = json.loads((tmp_path / "live" / "status.json").read_text())
     assert status["iterations"] is None and status["minutes"] is None and status["progress"] == 0.25

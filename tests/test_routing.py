@@ -1,8 +1,8 @@
 import torch
 
-from recon import routing
+from recon.dtg import routing
 from recon.config import RoutingConfig
-from recon.time_embedding import TimeEmbedding, lerp_rows
+from recon.dtg.time_embedding import TimeEmbedding, lerp_rows
 
 
 def test_schedule_phases_and_prior():

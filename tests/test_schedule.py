@@ -1,12 +1,12 @@
-"""Training length chosen by the scene (recon/schedule.py): the schedule holds while held-out
+"""Training length chosen by the scene (recon/train/schedule.py): the schedule holds while held-out
 error improves, then finishes; a wall-clock cap ends it; progress never goes backwards."""
 import pytest
 
 from recon.data import load_dataset
 from recon.data.simulate import SimulateConfig, simulate_dataset
 from recon.scene import Scene
-from recon.schedule import Schedule
-from recon.train import Trainer
+from recon.train.schedule import Schedule
+from recon.train.trainer import Trainer
 
 from tests.test_train import small_cfg
 

@@ -18,9 +18,9 @@ import server
 from recon.config import make_config
 from recon.data import load_dataset
 from recon.data.simulate import SimulateConfig, simulate_dataset
-from recon.publish import LivePublisher, TrainingFeed
+from recon.live.publish import LivePublisher, TrainingFeed
 from recon.scene import Scene
-from recon.train import Trainer
+from recon.train.trainer import Trainer
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import server
-from recon.publish import LivePublisher
+from recon.live.publish import LivePublisher
 from rig.info import session_info
 from rig.session import open_session
 from server.run_reader import parse_jsonl

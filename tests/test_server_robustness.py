@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import server
-from recon.publish import LivePublisher
+from recon.live.publish import LivePublisher
 from server.app import MAX_CONNECTIONS
 from server.handler import StatusHandler
 

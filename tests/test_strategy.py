@@ -3,9 +3,9 @@ children inherit their parent's values and Adam moments."""
 import torch
 from torch import nn
 
-from recon import routing
+from recon.dtg import routing
 from recon.config import DensifyConfig
-from recon.strategy import Strategy, duplicate, remove, split
+from recon.dtg.strategy import Strategy, duplicate, remove, split
 
 
 def make(n=10, seed=0):

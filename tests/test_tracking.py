@@ -1,5 +1,5 @@
 """Moving objects are fitted where the training views saw them: rigid motion bases learned in a
-growing time window (recon/motion.py, recon/curriculum.py) against the E-D3DGS deformation network.
+growing time window (recon/dtg/motion.py, recon/train/curriculum.py) against the E-D3DGS deformation network.
 
 A family scene with one hot moving box (seed 47: an arc of ~1 m, ten times its size) at 96x72, 40
 time steps, 500 iterations. Measured at this size: deformation network 46.7 K mean error on the
@@ -13,10 +13,10 @@ from recon.config import make_config
 from recon.data import load_dataset
 from recon.data.simulate import SimulateConfig, simulate_dataset
 from recon.eval.evaluate import moving_masks
-from recon.losses import thermal_loss
+from recon.dtg.losses import thermal_loss
 from recon.render import render, render_frame
 from recon.scene import Scene
-from recon.train import Trainer
+from recon.train.trainer import Trainer
 
 
 @pytest.fixture(scope="module")

@@ -4,12 +4,12 @@ import math
 import pytest
 import torch
 
-from recon import routing
+from recon.dtg import routing
 from recon.config import make_config
 from recon.data import load_dataset
 from recon.data.simulate import SimulateConfig, simulate_dataset
 from recon.scene import Scene
-from recon.train import Trainer
+from recon.train.trainer import Trainer
 
 
 def tiny(tmp_path_factory, variant="default"):

@@ -13,49 +13,36 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 
-from recon import routing
 from recon.config import TrainConfig, config_from_dict, config_to_dict
-from recon.eval import psnr
-from recon.gaussians import extend_knots, init_gaussians, knn_mean_sq_dist, trajectory_knots
-from recon.losses import EmbeddingSmoothness, rgb_loss, thermal_loss, trimmed_l1
-from recon.model import DTGModel, check_params, time_rows
-from recon.motion import connected_clusters
-from recon.curriculum import TimeWindow, extrapolate_rows, place_bases
-from recon.checkpoint import PREVIOUS_CHECKPOINT, read_checkpoint
-from recon.guard import DivergenceGuard, Event, TrainingDiverged, nonfinite_parameter
-from recon.points import changing_points, initial_temperatures, observed_time
-from recon.priors import MotionPriors
-from recon.schedule import Schedule
+from recon.dtg import routing
+from recon.dtg.losses import EmbeddingSmoothness, rgb_loss, thermal_loss, trimmed_l1
+from recon.dtg.model import DTGModel, check_params, time_rows
+from recon.dtg.priors import MotionPriors
+from recon.dtg.strategy import Strategy
 from recon.render import inference_masks, render
 from recon.scene import Scene
-from recon.strategy import Strategy, swap_parameter
-from recon.time_embedding import resample_rows
-
-
-def log_lerp(a: float, b: float, p: float) -> float:
-    """Exponential (log-linear) decay from a to b as p goes 0 -> 1 (3DGS get_expon_lr_func)."""
-    p = min(max(p, 0.0), 1.0)
-    return math.exp(math.log(a) * (1 - p) + math.log(b) * p)
-
-
-def initial_background(scene: Scene, modality: str) -> torch.Tensor:
-    """Median of the image borders over a few training views: a start for the learned background."""
-    views = scene.train[modality][:: max(1, len(scene.train[modality]) // 4)][:4]
-    border = []
-    for view in views:
-        img, valid = scene.target(view)
-        img = img if img.dim() == 3 else img[..., None]
-        ring = torch.cat([img[0], img[-1], img[:, 0], img[:, -1]])
-        if valid is not None:
-            ring = ring[torch.cat([valid[0], valid[-1], valid[:, 0], valid[:, -1]])]
-        border.append(ring)
-    return torch.cat(border).median(0).values if border else torch.zeros(3 if modality == "rgb" else 1)
+from recon.train import timeline
+from recon.train.checkpoint import read_checkpoint, write_checkpoint
+from recon.train.curriculum import TimeWindow, continue_beyond, frames_at, place_bases
+from recon.train.guard import DivergenceGuard, Event, TrainingDiverged, median_motion, nonfinite_parameter
+from recon.train.holdout import holdout_psnr, holdout_views
+from recon.train.initial import initial_model
+from recon.train.optim import build_optimizer, update_learning_rates
+from recon.train.progress import progress_line
+from recon.train.schedule import Schedule
 
 
 class Trainer:
+    """A run: its model, optimizer, schedule and statistics, and the loop that steps them.
+
+    Each job lives in its own module and Trainer only wires them: the starting model
+    (initial.py), learning rates (optim.py), when the run ends (schedule.py), the growing time
+    window (curriculum.py), held-out views (holdout.py), divergence and rollback (guard.py),
+    checkpoint files (checkpoint.py), growing the time axis live (timeline.py), the progress line
+    (progress.py). ``step`` is one iteration; ``tick`` adds evaluation, guard and checkpoint."""
+
     def __init__(self, cfg: TrainConfig, scene: Scene, out_dir: Path | None = None,
                  model: DTGModel | None = None, log=None):
         self.cfg = cfg
@@ -70,9 +57,9 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.gen = torch.Generator().manual_seed(cfg.seed)
         self.extent = scene.extent()
-        self.model = model if model is not None else self._init_model()
+        self.model = model if model is not None else initial_model(cfg, scene, self.gen, self.log)
         check_params(cfg.model, dict(self.model.gaussians))
-        self.optimizer = self._build_optimizer()
+        self.optimizer = build_optimizer(self.cfg, self.model, self.extent)
         if not cfg.densify.max_gaussians:
             v = next(iter(scene.train[cfg.model.modalities[0]]))
             cfg.densify.max_gaussians = int(min(max(0.5 * v.camera.width * v.camera.height, 5000), 100_000))
@@ -92,141 +79,21 @@ class Trainer:
         self.events: list[dict] = []   # divergences and rollbacks, for the log, history and status
         self._snapshot: dict | None = None
         self._hold_over = False
-        self.progress_fn = None    # live training (recon.follow) drives the schedule itself
+        self.progress_fn = None    # live training (recon.live.follow) drives the schedule itself
         self.holdout = self._holdout_views()
         self.window = TimeWindow(cfg.curriculum, scene.times, cfg.iterations)
         if self.cfg.stop.converge and not self.validation_times:
             self.schedule.release("no held-out time steps to judge convergence (fewer than "
                                   f"{cfg.stop.validation_every // 2 + 1}): the nominal schedule")
 
-    # ------------------------------------------------------------------ set-up
-    def _init_model(self) -> DTGModel:
-        ds = self.scene.dataset
-        if ds.points_xyz is None or len(ds.points_xyz) == 0:
-            raise ValueError(f"{ds.root}: no initial points (points3d.ply); recon needs an SfM point cloud")
-        pts = torch.as_tensor(np.asarray(ds.points_xyz), dtype=torch.float32)
-        rgb = torch.as_tensor(np.asarray(ds.points_rgb if ds.points_rgb is not None else np.full((len(pts), 3), 0.5)),
-                              dtype=torch.float32)
-        if rgb.max() > 1.0:
-            rgb = rgb / 255.0
-        if len(pts) > self.cfg.max_points:
-            keep = torch.randperm(len(pts), generator=self.gen)[: self.cfg.max_points]
-            pts, rgb = pts[keep], rgb[keep]
-        n_times = self.scene.steps_per_unit_time()
-        m = self.cfg.model
-        bases = m.motion_bases and m.deformation != "none"
-        dynamic = changing_points(self.scene, pts, m.split_rgb, m.split_kelvin, m.split_fraction) \
-            if m.motion_split or bases else None
-        if dynamic is not None:
-            self.log(f"static/dynamic split: {int(dynamic.sum())} of {len(pts)} initial points see a "
-                     f"changing scene and may move")
-        basis, pivots = None, None
-        if bases:
-            pts, rgb, dynamic, basis, pivots = self._motion_init(pts, rgb, dynamic)
-        temps = initial_temperatures(self.scene, pts) if "thermal" in self.cfg.model.modalities else None
-        params = init_gaussians(pts, rgb, temps, m, self.cfg.routing, self.gen,
-                                trajectory_knots(m, n_times), dynamic if m.motion_split else None, basis)
-        bgs = {m: initial_background(self.scene, m) for m in self.cfg.model.modalities}
-        return DTGModel(self.cfg.model, params, n_times=n_times, backgrounds=bgs, pivots=pivots)
-
-    def _motion_init(self, pts, rgb, dynamic):
-        """Motion bases from the initial points: the moving points as seen at one instant, one
-        rigid basis per spatially connected group of them (recon/motion.py). Points of moving
-        things seen at other instants (ghosts along their paths) are dropped: from that instant
-        on they would be in the wrong place. -> (points, colours, dynamic flags, basis (M,), pivots)"""
-        m, c = self.cfg.model, self.cfg.curriculum
-        flagged = dynamic.clone()
-        seen = observed_time(self.scene, pts[flagged], rgb[flagged]) if flagged.any() else None
-        if seen is not None:
-            t_seen, matched = seen
-            if c.center < 0:
-                c.center = t_seen
-                self.log(f"the moving points match the views best at t = {t_seen:.3f}: motion is learned "
-                         f"outwards from there")
-            ghosts = flagged.nonzero()[:, 0][~matched]
-            keep = torch.ones(len(pts), dtype=torch.bool)
-            keep[ghosts] = False
-            pts, rgb, dynamic, flagged = pts[keep], rgb[keep], dynamic[keep], flagged[keep]
-            self.log(f"{len(ghosts)} moving points seen at other instants dropped")
-        basis = torch.zeros(len(pts))
-        index = flagged.nonzero()[:, 0]
-        if len(index) < max(m.basis_points // 5, 3):
-            self.log("motion bases: no moving points; every Gaussian is static")
-            return pts, rgb, dynamic, basis, torch.zeros(0, 3)
-        spacing = knn_mean_sq_dist(pts[index], k=1).sqrt().median()
-        labels = connected_clusters(pts[index], float(3 * spacing))
-        sizes = torch.bincount(labels)
-        usable = [k for k in range(len(sizes)) if sizes[k] >= max(m.basis_points // 5, 3)][: m.motion_bases]
-        if not usable:
-            self.log("motion bases: the moving points form no body; every Gaussian is static")
-            return pts, rgb, dynamic, basis, torch.zeros(0, 3)
-        pivots = torch.stack([pts[index][labels == k].mean(0) for k in usable])
-        for b, k in enumerate(usable):
-            basis[index[labels == k]] = b + 1
-        self.log(f"motion bases: {len(usable)} rigid bodies from {int((basis > 0).sum())} moving points")
-        return pts, rgb, dynamic, basis, pivots
-
-    def _base_lr(self, key: str) -> float:
-        lr = self.cfg.lr
-        if key == "means":
-            return lr.means_scene[0] * self.extent
-        if key.startswith("features_"):
-            if key.endswith("_rest"):
-                return lr.rgb_rest if "rgb" in key else lr.thermal / 20
-            return lr.rgb_dc if "rgb" in key else lr.thermal
-        if key == "trajectory":
-            return lr.trajectory_scene[0] * self.extent
-        if key == "dynamic_logit":
-            return lr.dynamic
-        table = {"quats": lr.quats, "log_scales": lr.scales, "route_logits": self.cfg.routing.lr}
-        if key in table:
-            return table[key]
-        if key.startswith("opacity_"):
-            return lr.opacity
-        if key.startswith("embedding"):
-            return lr.embedding
-        raise KeyError(f"no learning rate for Gaussian parameter {key!r}")
-
-    def _build_optimizer(self) -> torch.optim.Optimizer:
-        groups = [{"params": [p], "name": k, "lr": self._base_lr(k), "base_lr": self._base_lr(k)}
-                  for k, p in self.model.gaussians.items() if p.requires_grad]
-        if self.cfg.model.deformation != "none":
-            groups.append({"params": list(self.model.deformers.parameters()), "name": "deformation",
-                           "lr": self.cfg.lr.deformation_scene[0] * self.extent})
-            groups.append({"params": list(self.model.time_embedding.parameters()), "name": "time_embedding",
-                           "lr": self.cfg.lr.time_embedding[0]})
-        if self.model.motion is not None:
-            lr = self.cfg.lr
-            groups.append({"params": [self.model.motion.rotation], "name": "motion_rotation",
-                           "lr": lr.motion_rotation[0]})
-            groups.append({"params": [self.model.motion.translation], "name": "motion_translation",
-                           "lr": lr.motion_translation_scene[0] * self.extent})
-        groups.append({"params": list(self.model.backgrounds.parameters()), "name": "backgrounds",
-                       "lr": self.cfg.lr.thermal_background, "base_lr": self.cfg.lr.thermal_background})
-        return torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)
-
     def uses_validation(self) -> bool:
         """Whether held-out training time steps decide anything (when to stop, how many Gaussians)."""
         return (self.cfg.stop.converge or self.cfg.densify.auto_stop) and self.progress_fn is None
 
     def _holdout_views(self):
-        """Views for the progress line and, when held-out error decides when to stop or how many
-        Gaussians to grow, for that decision. The progress line shows the test view nearest the
-        middle of the sequence; decisions must not look at test data, so they use every 8th
-        training time step instead (offset 4), kept out of training until the schedule's hold
-        ends (with the automatic budget alone: for the whole run)."""
-        out = {}
-        every = self.cfg.stop.validation_every
-        held = set(self.scene.times[every // 2::every]) if self.uses_validation() else set()
-        self.validation_times = held
-        self.train_times = [t for t in self.scene.times if t not in held]
-        for m in self.cfg.model.modalities:
-            if held:
-                out[m] = [v for v in self.scene.train[m] if v.time in held]
-            else:
-                views = self.scene.test[m] or self.scene.train[m]
-                out[m] = [min(views, key=lambda v: abs(v.time - 0.5))] if views else []
-        return out
+        views, self.validation_times = holdout_views(self.cfg, self.scene, self.uses_validation())
+        self.train_times = [t for t in self.scene.times if t not in self.validation_times]
+        return views
 
     def replace_scene(self, scene: Scene) -> None:
         """Continue on a grown scene (live training): same model, optimizer and statistics; new
@@ -244,60 +111,12 @@ class Trainer:
                 self.model.n_times = scene.steps_per_unit_time()
 
     def extend_time(self, factor: int) -> None:
-        """Make the time embedding (and trajectories) cover a `factor` times longer span without
-        losing what they learned (TimeEmbedding.extended); Adam moments are padded with zeros."""
-        def pad(v: torch.Tensor, rows: int) -> torch.Tensor:
-            return torch.cat([v, v.new_zeros(rows - v.shape[0], *v.shape[1:])])
-        self._replace_time_tables(self.model.time_embedding.extended(factor), pad)
-        self._resize_trajectories(lambda x, moment: extend_knots(x, factor, zero=moment))
-        self._resize_motion(lambda x, moment: extend_knots(x, factor, zero=moment))
+        """The time axis covers a `factor` times longer span (recon/train/timeline.py)."""
+        timeline.extend_time(self.model, self.optimizer, factor)
 
     def refine_time(self, factor: int) -> None:
-        """`factor` times more time-embedding rows (and trajectory knots) over the same span
-        (TimeEmbedding.refined); Adam moments are interpolated like the rows."""
-        self._replace_time_tables(self.model.time_embedding.refined(factor), resample_rows)
-        refine = lambda x, _: resample_rows(x, (x.shape[1] - 1) * factor + 1, dim=1)  # noqa: E731
-        self._resize_trajectories(refine)
-        self._resize_motion(refine)
-
-    @torch.no_grad()
-    def _resize_motion(self, fn) -> None:
-        """fn(knots (B, K, 3), is_moment) -> (B, K', 3) for the motion bases and their Adam moments."""
-        motion = self.model.motion
-        if motion is None:
-            return
-        for name in ("rotation", "translation"):
-            old = getattr(motion, name)
-            param = torch.nn.Parameter(fn(old.detach(), False).clone())
-            group = next(g for g in self.optimizer.param_groups if g["name"] == f"motion_{name}")
-            group["params"] = [param]
-            state = self.optimizer.state.pop(old, {})
-            if state:
-                self.optimizer.state[param] = {k: (fn(v, True) if torch.is_tensor(v) and v.dim() == 3 else v)
-                                               for k, v in state.items()}
-            setattr(motion, name, param)
-
-    def _resize_trajectories(self, fn) -> None:
-        """fn(knots (N, K, 3), is_moment) -> (N, K', 3) for the trajectory and its Adam moments."""
-        if "trajectory" in self.model.gaussians:
-            swap_parameter(self.model.gaussians, self.optimizer, "trajectory",
-                           lambda x: fn(x, False), lambda x: fn(x, True))
-
-    @torch.no_grad()
-    def _replace_time_tables(self, new: dict[str, torch.Tensor], moments) -> None:
-        """Install new time-embedding tables as fresh parameters of the optimizer;
-        moments(old (R, D) Adam moment, new row count) -> its (R', D) successor."""
-        te = self.model.time_embedding
-        group = next(g for g in self.optimizer.param_groups if g["name"] == "time_embedding")
-        for name, table in new.items():
-            old = getattr(te, name)
-            param = torch.nn.Parameter(table.clone())
-            state = self.optimizer.state.pop(old, {})
-            group["params"] = [param if p is old else p for p in group["params"]]
-            if state:
-                self.optimizer.state[param] = {k: (moments(v, table.shape[0]) if torch.is_tensor(v) and v.dim() == 2 else v)
-                                               for k, v in state.items()}
-            setattr(te, name, param)
+        """`factor` times more time rows over the same span (recon/train/timeline.py)."""
+        timeline.refine_time(self.model, self.optimizer, factor)
 
     # ------------------------------------------------------------------ schedule
     def progress(self) -> float:
@@ -316,31 +135,6 @@ class Trainer:
         if self.cfg.minutes and not self.cfg.stop.converge and self.iteration >= 20 and self.progress() > 0:
             return self.iteration / self.progress()
         return float(self.cfg.iterations)
-
-    def _update_lrs(self, p: float) -> None:
-        lr = self.cfg.lr
-        routing_scale = max(1.0, self.cfg.routing.lr_reference_iterations / max(self.expected_iterations(), 1.0))
-        # the ramp takes at most a tenth of a short run
-        ramp = min(lr.deformation_warmup, 0.1 * self.expected_iterations())
-        warm = min(1.0, (self.iteration + 1) / ramp) if ramp >= 1 else 1.0
-        for group in self.optimizer.param_groups:
-            if group["name"] == "route_logits":
-                value = self.cfg.routing.lr * routing_scale
-            elif group["name"] == "means":
-                value = log_lerp(*lr.means_scene, p) * self.extent
-            elif group["name"] == "trajectory":
-                value = log_lerp(*lr.trajectory_scene, p) * self.extent
-            elif group["name"] == "deformation":
-                value = log_lerp(*lr.deformation_scene, p) * self.extent * warm
-            elif group["name"] == "motion_rotation":
-                value = log_lerp(*lr.motion_rotation, p)
-            elif group["name"] == "motion_translation":
-                value = log_lerp(*lr.motion_translation_scene, p) * self.extent
-            elif group["name"] == "time_embedding":
-                value = log_lerp(*lr.time_embedding, p) * warm
-            else:
-                value = group["base_lr"]
-            group["lr"] = value * self.lr_scale
 
     def active_sh_degree(self, modality: str, p: float) -> int:
         full = self.cfg.model.rgb_sh_degree if modality == "rgb" else self.cfg.model.thermal_sh_degree
@@ -433,15 +227,16 @@ class Trainer:
         """One iteration. Returns its statistics."""
         start = time.perf_counter()
         p = self.progress()
-        self._update_lrs(p)
+        update_learning_rates(self.optimizer, self.cfg, p, self.iteration, self.expected_iterations(),
+                              self.extent, self.lr_scale)
         # the window's clock: iterations, or the share of a --minutes budget when iterations are
         # slow (so the window is whole by `complete_by` of the time, whatever the pace)
         taken_in = self.window.update(max(self.iteration, int(p * self.cfg.iterations)))
         if taken_in:            # (all knots start at rest: nothing to carry on before)
-            self._extrapolate(*self.window.span())
+            continue_beyond(self.model, *self.window.span())
             if self.cfg.curriculum.search and self.model.motion is not None:
                 for side, when in taken_in:
-                    self._place(when, side)
+                    place_bases(self.model, frames_at(self.scene, self.cfg.model.modalities, when), when, side)
         t = self.window.pick(self.train_times, self.gen)
         mods = [m for m in ("rgb", "thermal") if m in self.cfg.model.modalities and self.scene.views_at(m, t)]
         noise = self._routing_noise(p)
@@ -464,30 +259,6 @@ class Trainer:
             self._after_hold()
         return stats
 
-    def _place(self, t: float, side: str) -> None:
-        """Search where the motion bases are at a newly taken-in time step (recon/curriculum.py)."""
-        frames = []
-        for m in self.cfg.model.modalities:
-            for view in self.scene.views_at(m, t):
-                target, valid = self.scene.target(view)
-                frames.append((m, view, target, valid))
-        place_bases(self.model, frames, t, side)
-
-    @torch.no_grad()
-    def _extrapolate(self, lo: float, hi: float) -> None:
-        """Time rows beyond the window continue its edges (recon/curriculum.py)."""
-        if self.cfg.curriculum.grow_every <= 0 or self.cfg.model.deformation == "none":
-            return
-        g = self.model.gaussians
-        if "trajectory" in g:
-            extrapolate_rows(g["trajectory"].data, lo, hi, dim=1, velocity=True)
-        if self.model.motion is not None:
-            extrapolate_rows(self.model.motion.rotation.data, lo, hi, dim=1, velocity=True)
-            extrapolate_rows(self.model.motion.translation.data, lo, hi, dim=1, velocity=True)
-        te = self.model.time_embedding
-        for table in (te.coarse, te.fine):
-            extrapolate_rows(table.data, lo, hi, dim=0, velocity=False)
-
     def _after_hold(self) -> None:
         """Once the schedule's hold has ended: say why, and train on the held-out time steps too
         (with the automatic budget they stay out: it keeps deciding)."""
@@ -502,22 +273,8 @@ class Trainer:
             self.train_times = list(self.scene.times)
 
     # ------------------------------------------------------------------ evaluation
-    @torch.no_grad()
     def holdout_psnr(self) -> dict[str, float]:
-        from recon.render import render_frame
-        out = {}
-        for m, views in self.holdout.items():
-            scores = []
-            for view in views:
-                pred = render_frame(self.model, m, view.time, view.camera)
-                target, valid = self.scene.target(view)
-                if m == "rgb":
-                    scores.append(float(psnr(pred.clamp(0, 1), target)))
-                else:
-                    scores.append(float(psnr(pred[..., 0].clamp(0, 1), target, mask=valid)))
-            if scores:
-                out[m] = sum(scores) / len(scores)
-        return out
+        return holdout_psnr(self.model, self.scene, self.holdout)
 
     def _auto_budget(self, scores: dict[str, float]) -> None:
         if not self.cfg.densify.auto_stop or not self.strategy.growing or not scores:
@@ -611,37 +368,21 @@ class Trainer:
 
     def _print_progress(self, losses: dict, its: float) -> None:
         p = self.progress()
-        psnrs = self.history[-1] if self.history else {}
-        ps = " ".join(f"{m} {psnrs[f'psnr_{m}']:.2f}" for m in self.cfg.model.modalities if f"psnr_{m}" in psnrs)
-        ls = " ".join(f"{k[5:]} {v:.4f}" for k, v in losses.items())
-        roles = " ".join(f"{k} {v}" for k, v in self.counts().items())
         if self.progress_fn is not None:      # live: the end depends on the capture
             eta = self.elapsed * (1 - p) / max(p, 1e-9)
         elif self.cfg.minutes:
             eta = max(60 * self.cfg.minutes - self.elapsed, 0)
         else:
             eta = (self.cfg.iterations - self.iteration) / max(its, 1e-9)
-        line = (f"\r[{'#' * int(20 * p):<20}] {100 * p:5.1f}% it {self.iteration} | {its:5.1f} it/s | "
-                f"loss {ls} | PSNR(held-out) {ps or '-'} | Gaussians {roles} | ETA {int(eta) // 60}:{int(eta) % 60:02d}")
-        end = "" if sys.stderr.isatty() else "\n"
-        sys.stderr.write(line + end)
+        psnrs = {m: v for m in self.cfg.model.modalities
+                 if (v := (self.history[-1] if self.history else {}).get(f"psnr_{m}")) is not None}
+        line = progress_line(p, self.iteration, its, losses, psnrs, self.counts(), eta)
+        sys.stderr.write("\r" + line + ("" if sys.stderr.isatty() else "\n"))
         sys.stderr.flush()
 
     # ------------------------------------------------------------------ divergence
-    @torch.no_grad()
-    def median_motion(self, sample: int = 4096, times: int = 5) -> float | None:
-        """The median over (a sample of) Gaussians of their largest displacement from the canonical
-        position over time, in scene extents; None for a static model."""
-        stage = self.model.motion_stage()
-        n = self.model.num_gaussians
-        if (stage is None and self.model.motion is None) or n == 0:
-            return None
-        idx = torch.randperm(n, generator=torch.Generator().manual_seed(self.iteration))[:sample]
-        mu = self.model.gaussians["means"][idx]
-        p = self.progress()
-        moved = torch.stack([(self.model.means_at(stage, float(t), p, idx) - mu).norm(dim=1)
-                             for t in torch.linspace(0, 1, times)])
-        return float(moved.max(0).values.median()) / self.extent
+    def median_motion(self) -> float | None:
+        return median_motion(self.model, self.progress(), self.extent, seed=self.iteration)
 
     def _take_snapshot(self) -> None:
         """Keep the current (healthy) state in memory to roll back to."""
@@ -664,7 +405,7 @@ class Trainer:
         self.log(f"divergence at iteration {self.iteration}: {reason}; rolled back to iteration "
                  f"{snap['iteration']} with learning rates x{self.lr_scale:g}")
         self.model = DTGModel.from_checkpoint(self.cfg.model, copy.deepcopy(snap["model"]))
-        self.optimizer = self._build_optimizer()
+        self.optimizer = build_optimizer(self.cfg, self.model, self.extent)
         self.optimizer.load_state_dict(copy.deepcopy(snap["optimizer"]))
         self.strategy.stats = type(self.strategy.stats)()
         self.smoothness.load_state({"n": -1, "neighbours": None})
@@ -673,7 +414,7 @@ class Trainer:
 
     # ------------------------------------------------------------------ checkpoints
     def save_checkpoint(self, path: Path) -> None:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        """Everything needed to continue bit-for-bit (recon/train/checkpoint.py writes it)."""
         state = {
             "config": config_to_dict(self.cfg), "model": self.model.state_for_checkpoint(),
             "optimizer": self.optimizer.state_dict(), "iteration": self.iteration, "elapsed": self.elapsed,
@@ -687,11 +428,7 @@ class Trainer:
             "guard_best": self.guard.best_holdout,
             "extent": self.extent,
         }
-        tmp = path.with_suffix(".tmp")
-        torch.save(state, tmp)
-        if path.exists():   # keep the one before: a file damaged later still leaves a good state
-            path.replace(path.with_name(PREVIOUS_CHECKPOINT))
-        tmp.replace(path)   # atomic: a crash never leaves a torn checkpoint
+        write_checkpoint(state, path)
 
     @classmethod
     def resume(cls, path: Path, scene: Scene, out_dir: Path | None = None, log=None,

@@ -1,5 +1,5 @@
 """Checkpoint files: `checkpoints/latest.pt` and the one before it, `previous.pt` (written by
-`Trainer.save_checkpoint`), and reading them back so that one damaged file costs one checkpoint
+`write_checkpoint`), and reading them back so that one damaged file costs one checkpoint
 interval, not the run."""
 from __future__ import annotations
 
@@ -8,6 +8,17 @@ from pathlib import Path
 import torch
 
 PREVIOUS_CHECKPOINT = "previous.pt"
+
+
+def write_checkpoint(state: dict, path: Path) -> None:
+    """Write `state` to `path` atomically (a crash never leaves a torn checkpoint), keeping the one
+    before as previous.pt: a file damaged later still leaves a good state."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    torch.save(state, tmp)
+    if path.exists():
+        path.replace(path.with_name(PREVIOUS_CHECKPOINT))
+    tmp.replace(path)
 
 
 class CheckpointError(RuntimeError):

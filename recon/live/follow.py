@@ -34,7 +34,7 @@ from recon.config import TrainConfig
 from recon.data import load_dataset
 from recon.data.ply import read_points_ply, write_points_ply
 from recon.scene import Scene
-from recon.train import Trainer
+from recon.train.trainer import Trainer
 from rig.session import open_session
 
 

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import torch
 
+from recon.render import render_frame
+
 
 def window_bounds(iteration: int, n_times: int, center: float, start_steps: int, grow_every: float,
                   hold: float = 0) -> tuple[int, int]:
@@ -118,9 +120,35 @@ def extrapolate_rows(table: torch.Tensor, lo: float, hi: float, dim: int = 0, ve
             t[r] = edge + (first - r) * step
 
 
+@torch.no_grad()
+def continue_beyond(model, lo: float, hi: float) -> None:
+    """The model's time rows beyond the window [lo, hi] continue its edges: trajectory and motion
+    knots at constant velocity, time-embedding rows held (extrapolate_rows)."""
+    if model.cfg.deformation == "none":
+        return
+    g = model.gaussians
+    if "trajectory" in g:
+        extrapolate_rows(g["trajectory"].data, lo, hi, dim=1, velocity=True)
+    if model.motion is not None:
+        extrapolate_rows(model.motion.rotation.data, lo, hi, dim=1, velocity=True)
+        extrapolate_rows(model.motion.translation.data, lo, hi, dim=1, velocity=True)
+    te = model.time_embedding
+    for table in (te.coarse, te.fine):
+        extrapolate_rows(table.data, lo, hi, dim=0, velocity=False)
+
+
+def frames_at(scene, modalities, t: float) -> list[tuple]:
+    """[(modality, view, target, valid)] of every training view at time t: what place_bases compares."""
+    frames = []
+    for m in modalities:
+        for view in scene.views_at(m, t):
+            target, valid = scene.target(view)
+            frames.append((m, view, target, valid))
+    return frames
+
+
 def frame_loss(model, frames, t: float) -> float:
     """Mean L1 of the model's renders at time t against frames [(modality, view, target, valid)]."""
-    from recon.render import render_frame    # render builds on the model; imported where used
     total = 0.0
     for modality, view, target, valid in frames:
         pred = render_frame(model, modality, t, view.camera)
@@ -144,7 +172,7 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
     smoothness (MotionBases.smoothness): one view pins it poorly. Photometric gradients only pull an object that already overlaps its
     image; a search finds one that the constant-velocity guess missed by a few pixels.
     Returns {basis: offset (3,)} of the bases it moved."""
-    from recon.motion import apply_motion
+    from recon.dtg.motion import apply_motion
     motion = model.motion
     if motion is None or not frames or motion.count == 0:
         return {}

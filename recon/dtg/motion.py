@@ -10,7 +10,7 @@ and a translation per time knot, about a fixed pivot (the centre of the Gaussian
 from). All pixels of an object then pull on the same six numbers per instant, its shape is shared
 by every instant, and so its apparent size and its RGB-thermal parallax fix its depth.
 
-Per Gaussian (``recon/gaussians.py``): ``motion_basis`` (N,) the basis index, 0 = static (not
+Per Gaussian (``recon/dtg/gaussians.py``): ``motion_basis`` (N,) the basis index, 0 = static (not
 learned; children of a densified Gaussian inherit it), and the gate ``dynamic_logit`` (N,): a
 Gaussian moves by sigmoid(gate) of its basis' motion, so a background point that was put in a
 basis (it lay on a moving object's path) can learn to stay.
@@ -20,7 +20,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from recon.time_embedding import lerp_rows
+from recon.dtg.time_embedding import lerp_rows
 
 
 def axis_angle_to_matrix(v: torch.Tensor) -> torch.Tensor:

@@ -27,8 +27,8 @@ from __future__ import annotations
 import torch
 
 from recon.config import PriorConfig
-from recon.gaussians import quat_to_rotmat
-from recon.losses import knn_indices
+from recon.dtg.gaussians import quat_to_rotmat
+from recon.dtg.losses import knn_indices
 
 
 def rigidity_terms(means_c: torch.Tensor, quats_c: torch.Tensor, means_t: torch.Tensor,

@@ -17,10 +17,10 @@ import torch
 from torch import nn
 
 from recon.config import ModelConfig
-from recon.deformation import DeformationNet, geometry_outputs, modality_outputs
-from recon.gaussians import embedding_keys, sh_coeffs
-from recon.motion import MotionBases, apply_motion
-from recon.time_embedding import TimeEmbedding, lerp_rows
+from recon.dtg.deformation import DeformationNet, geometry_outputs, modality_outputs
+from recon.dtg.gaussians import embedding_keys, sh_coeffs
+from recon.dtg.motion import MotionBases, apply_motion
+from recon.dtg.time_embedding import TimeEmbedding, lerp_rows
 
 GEOMETRY = ("means", "quats", "log_scales")
 NOT_LEARNED = ("dynamic", "motion_basis")      # per-Gaussian state the trainer sets (densification still carries it)

@@ -10,7 +10,7 @@ an opacity logit ``opacity_m`` (N,), and the deformation embedding(s); routing l
 with ``dynamic_gate``; the static/dynamic flag ``dynamic`` (N,) with ``motion_split`` (not learned).
 
 Everything that has one row per Gaussian lives in this dict, so densification and pruning
-(recon.strategy) handle a new attribute without any change.
+(recon.dtg.strategy) handle a new attribute without any change.
 """
 from __future__ import annotations
 

@@ -295,11 +295,11 @@ class TrainingFeed:
         self._schedule("metric")
 
     def publish_status(self, trainer, state: str = "training") -> None:
-        from recon import routing
+        from recon.dtg import routing
         cfg = trainer.cfg
         phase = routing.phase(cfg.routing, trainer.progress()) if cfg.model.routing else None
         times = trainer.scene.times
-        # live training (recon.follow) schedules progress itself: the configured budget is not its end
+        # live training (recon.live.follow) schedules progress itself: the configured budget is not its end
         scheduled = getattr(trainer, "progress_fn", None) is not None
         self.pub.status({
             "state": state, "method": cfg.method, "phase": phase, "iteration": trainer.iteration,

@@ -12,7 +12,7 @@ ways to drive p:
   (1 - hold_at) * iterations: routing specialises and freezes, learning rates decay, the run ends.
   A wall-clock cap (``minutes``) ends the hold early and, if needed, squeezes the rest so that the
   run ends at the cap;
-- live training (recon.follow) sets p itself.
+- live training (recon.live.follow) sets p itself.
 
 p never goes backwards, so no phase is ever revisited.
 """

@@ -16,9 +16,9 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
-from recon import routing
+from recon.dtg import routing
 from recon.config import DensifyConfig
-from recon.gaussians import quat_to_rotmat
+from recon.dtg.gaussians import quat_to_rotmat
 
 
 # ---------------------------------------------------------------- generic ops on every tensor

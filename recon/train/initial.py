@@ -1,0 +1,99 @@
+"""The model a run starts from: Gaussians at the dataset's SfM points, their temperatures read from
+the thermal views, learned backgrounds started from the image borders, and (dtg) the rigid bodies
+found among the points that see the scene change (recon/dtg/motion.py)."""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from recon.config import TrainConfig
+from recon.dtg.gaussians import init_gaussians, knn_mean_sq_dist, trajectory_knots
+from recon.dtg.model import DTGModel
+from recon.dtg.motion import connected_clusters
+from recon.dtg.points import changing_points, initial_temperatures, observed_time
+from recon.scene import Scene
+
+
+def initial_background(scene: Scene, modality: str) -> torch.Tensor:
+    """Median of the image borders over a few training views: a start for the learned background."""
+    views = scene.train[modality][:: max(1, len(scene.train[modality]) // 4)][:4]
+    border = []
+    for view in views:
+        img, valid = scene.target(view)
+        img = img if img.dim() == 3 else img[..., None]
+        ring = torch.cat([img[0], img[-1], img[:, 0], img[:, -1]])
+        if valid is not None:
+            ring = ring[torch.cat([valid[0], valid[-1], valid[:, 0], valid[:, -1]])]
+        border.append(ring)
+    return torch.cat(border).median(0).values if border else torch.zeros(3 if modality == "rgb" else 1)
+
+
+def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log) -> DTGModel:
+    """A new model from the scene's initial points (at most cfg.max_points of them). May set
+    cfg.curriculum.center (when it is automatic) to the instant the moving points were seen."""
+    ds = scene.dataset
+    if ds.points_xyz is None or len(ds.points_xyz) == 0:
+        raise ValueError(f"{ds.root}: no initial points (points3d.ply); recon needs an SfM point cloud")
+    pts = torch.as_tensor(np.asarray(ds.points_xyz), dtype=torch.float32)
+    rgb = torch.as_tensor(np.asarray(ds.points_rgb if ds.points_rgb is not None else np.full((len(pts), 3), 0.5)),
+                          dtype=torch.float32)
+    if rgb.max() > 1.0:
+        rgb = rgb / 255.0
+    if len(pts) > cfg.max_points:
+        keep = torch.randperm(len(pts), generator=gen)[: cfg.max_points]
+        pts, rgb = pts[keep], rgb[keep]
+    n_times = scene.steps_per_unit_time()
+    m = cfg.model
+    bases = m.motion_bases and m.deformation != "none"
+    dynamic = changing_points(scene, pts, m.split_rgb, m.split_kelvin, m.split_fraction) \
+        if m.motion_split or bases else None
+    if dynamic is not None:
+        log(f"static/dynamic split: {int(dynamic.sum())} of {len(pts)} initial points see a "
+            f"changing scene and may move")
+    basis, pivots = None, None
+    if bases:
+        pts, rgb, dynamic, basis, pivots = _motion_bodies(cfg, scene, pts, rgb, dynamic, log)
+    temps = initial_temperatures(scene, pts) if "thermal" in m.modalities else None
+    params = init_gaussians(pts, rgb, temps, m, cfg.routing, gen, trajectory_knots(m, n_times),
+                            dynamic if m.motion_split else None, basis)
+    bgs = {mod: initial_background(scene, mod) for mod in m.modalities}
+    return DTGModel(m, params, n_times=n_times, backgrounds=bgs, pivots=pivots)
+
+
+def _motion_bodies(cfg: TrainConfig, scene: Scene, pts, rgb, dynamic, log):
+    """Rigid bodies from the initial points: the moving points as seen at one instant, one body per
+    spatially connected group of them. Points of moving things seen at other instants (ghosts
+    along their paths) are dropped: from that instant on they would be in the wrong place.
+    pts (P, 3), rgb (P, 3), dynamic (P,) -> (points, colours, dynamic flags, basis (P',), pivots (B, 3))"""
+    m, c = cfg.model, cfg.curriculum
+    flagged = dynamic.clone()
+    seen = observed_time(scene, pts[flagged], rgb[flagged]) if flagged.any() else None
+    if seen is not None:
+        t_seen, matched = seen
+        if c.center < 0:
+            c.center = t_seen
+            log(f"the moving points match the views best at t = {t_seen:.3f}: motion is learned "
+                f"outwards from there")
+        ghosts = flagged.nonzero()[:, 0][~matched]
+        keep = torch.ones(len(pts), dtype=torch.bool)
+        keep[ghosts] = False
+        pts, rgb, dynamic, flagged = pts[keep], rgb[keep], dynamic[keep], flagged[keep]
+        log(f"{len(ghosts)} moving points seen at other instants dropped")
+    basis = torch.zeros(len(pts))
+    index = flagged.nonzero()[:, 0]
+    smallest = max(m.basis_points // 5, 3)
+    if len(index) < smallest:
+        log("motion bases: no moving points; every Gaussian is static")
+        return pts, rgb, dynamic, basis, torch.zeros(0, 3)
+    spacing = knn_mean_sq_dist(pts[index], k=1).sqrt().median()
+    labels = connected_clusters(pts[index], float(3 * spacing))
+    sizes = torch.bincount(labels)
+    usable = [k for k in range(len(sizes)) if sizes[k] >= smallest][: m.motion_bases]
+    if not usable:
+        log("motion bases: the moving points form no body; every Gaussian is static")
+        return pts, rgb, dynamic, basis, torch.zeros(0, 3)
+    pivots = torch.stack([pts[index][labels == k].mean(0) for k in usable])
+    for b, k in enumerate(usable):
+        basis[index[labels == k]] = b + 1
+    log(f"motion bases: {len(usable)} rigid bodies from {int((basis > 0).sum())} moving points")
+    return pts, rgb, dynamic, basis, pivots

@@ -1,0 +1,79 @@
+"""The optimizer of a run: one Adam group per per-Gaussian tensor and per network, and the
+learning-rate schedule as a function of progress p (3DGS-style log-linear decay)."""
+from __future__ import annotations
+
+import math
+
+import torch
+
+from recon.config import TrainConfig
+from recon.dtg.model import DTGModel
+
+
+def log_lerp(a: float, b: float, p: float) -> float:
+    """Exponential (log-linear) decay from a to b as p goes 0 -> 1 (3DGS get_expon_lr_func)."""
+    p = min(max(p, 0.0), 1.0)
+    return math.exp(math.log(a) * (1 - p) + math.log(b) * p)
+
+
+def base_lr(cfg: TrainConfig, key: str, extent: float) -> float:
+    """Starting learning rate of the per-Gaussian tensor `key`."""
+    lr = cfg.lr
+    if key == "means":
+        return lr.means_scene[0] * extent
+    if key.startswith("features_"):
+        if key.endswith("_rest"):
+            return lr.rgb_rest if "rgb" in key else lr.thermal / 20
+        return lr.rgb_dc if "rgb" in key else lr.thermal
+    if key == "trajectory":
+        return lr.trajectory_scene[0] * extent
+    if key == "dynamic_logit":
+        return lr.dynamic
+    table = {"quats": lr.quats, "log_scales": lr.scales, "route_logits": cfg.routing.lr}
+    if key in table:
+        return table[key]
+    if key.startswith("opacity_"):
+        return lr.opacity
+    if key.startswith("embedding"):
+        return lr.embedding
+    raise KeyError(f"no learning rate for Gaussian parameter {key!r}")
+
+
+def build_optimizer(cfg: TrainConfig, model: DTGModel, extent: float) -> torch.optim.Optimizer:
+    """Adam over every learned tensor of the model, one named group each (densification swaps
+    per-Gaussian tensors by group name: recon/dtg/strategy.py)."""
+    groups = [{"params": [p], "name": k, "lr": base_lr(cfg, k, extent), "base_lr": base_lr(cfg, k, extent)}
+              for k, p in model.gaussians.items() if p.requires_grad]
+    if cfg.model.deformation != "none":
+        groups.append({"params": list(model.deformers.parameters()), "name": "deformation",
+                       "lr": cfg.lr.deformation_scene[0] * extent})
+        groups.append({"params": list(model.time_embedding.parameters()), "name": "time_embedding",
+                       "lr": cfg.lr.time_embedding[0]})
+    if model.motion is not None:
+        groups.append({"params": [model.motion.rotation], "name": "motion_rotation",
+                       "lr": cfg.lr.motion_rotation[0]})
+        groups.append({"params": [model.motion.translation], "name": "motion_translation",
+                       "lr": cfg.lr.motion_translation_scene[0] * extent})
+    groups.append({"params": list(model.backgrounds.parameters()), "name": "backgrounds",
+                   "lr": cfg.lr.thermal_background, "base_lr": cfg.lr.thermal_background})
+    return torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)
+
+
+def update_learning_rates(optimizer: torch.optim.Optimizer, cfg: TrainConfig, p: float, iteration: int,
+                          expected_iterations: float, extent: float, scale: float = 1.0) -> None:
+    """Set every group's rate for progress p. expected_iterations: the run's length (routing's rate
+    is scaled up for short runs, and the deformation warm-up takes at most a tenth of it);
+    scale: lowered by each rollback (recon/train/guard.py)."""
+    lr = cfg.lr
+    routing_scale = max(1.0, cfg.routing.lr_reference_iterations / max(expected_iterations, 1.0))
+    ramp = min(lr.deformation_warmup, 0.1 * expected_iterations)
+    warm = min(1.0, (iteration + 1) / ramp) if ramp >= 1 else 1.0
+    decayed = {"means": log_lerp(*lr.means_scene, p) * extent,
+               "trajectory": log_lerp(*lr.trajectory_scene, p) * extent,
+               "deformation": log_lerp(*lr.deformation_scene, p) * extent * warm,
+               "motion_rotation": log_lerp(*lr.motion_rotation, p),
+               "motion_translation": log_lerp(*lr.motion_translation_scene, p) * extent,
+               "time_embedding": log_lerp(*lr.time_embedding, p) * warm,
+               "route_logits": cfg.routing.lr * routing_scale}
+    for group in optimizer.param_groups:
+        group["lr"] = decayed.get(group["name"], group.get("base_lr")) * scale
