@@ -12,7 +12,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from rig.capture import Capture, CaptureConfig
+from rig.capture.config import CaptureConfig
+from rig.capture.session_capture import Capture
 from rig.info import session_info
 from rig.session import open_session
 

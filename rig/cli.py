@@ -6,7 +6,7 @@ import sys
 from rig.cli_format import command_parser, run_command
 
 COMMANDS = [
-    "rig.capture",
+    "rig.capture.cli",
     "rig.devices",
     "rig.info",
     "rig.calibrate",

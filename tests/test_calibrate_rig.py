@@ -9,7 +9,8 @@ import pytest
 from recon.prepare.poses import rotation_angle_deg
 from rig.calibrate import (CALIBRATION_FILE, CalibrationError, RigCalibration, calibrate, find_calibration,
                            load_calibration, simulated_calibration)
-from rig.capture import Capture, CaptureConfig
+from rig.capture.config import CaptureConfig
+from rig.capture.session_capture import Capture
 from rig.cli import main as rig_main
 from rig.session import open_session
 from rig.sim import make_calibration_world, make_world

@@ -16,7 +16,8 @@ from recon.prepare import REPORT_FILE, PrepareError, prepare_session
 from recon.prepare.poses import interpolate_pose, pose_errors
 from recon.prepare.simtruth import session_truth
 from rig.calibrate import simulated_calibration
-from rig.capture import Capture, CaptureConfig
+from rig.capture.config import CaptureConfig
+from rig.capture.session_capture import Capture
 from rig.session import Session, open_session
 
 FAST = dict(frames=12, test_every=4, downscale=2)

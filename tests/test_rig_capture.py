@@ -13,7 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig.capture import Capture, CaptureConfig, progress_line
+from rig.capture.config import CaptureConfig
+from rig.capture.progress import progress_line
+from rig.capture.session_capture import Capture
 from rig.cli import main as rig_main
 from rig.info import session_info
 from rig.session import open_session
@@ -80,7 +82,7 @@ def test_nuc_events_are_written_to_events_jsonl(tmp_path):
     (acked after a 0.6 s PENDING_ACK): each shows in events.jsonl with host times."""
     with FakeGigECamera(FakeConfig(width=160, height=120, nuc_period_s=1.5, nuc_duration_s=0.3)) as fake:
         cap = Capture(CaptureConfig(duration_s=4.0, out=tmp_path / "s", camera=fake.url, progress=False))
-        threading.Timer(2.0, lambda: cap.camera.nuc()).start()
+        threading.Timer(2.0, lambda: cap.dev.camera.nuc()).start()
         cap.run()
         nucs = fake.stats["nucs"]
     s = open_session(tmp_path / "s")

@@ -15,7 +15,8 @@ from recon.data.simulate import SimulateConfig, simulate_dataset
 from recon.prepare import REPORT_FILE
 from recon.splat.ply import read_gaussians_ply
 from rig.calibrate import Lens, RigCalibration
-from rig.capture import Capture, CaptureConfig
+from rig.capture.config import CaptureConfig
+from rig.capture.session_capture import Capture
 from rig.sim.rig_config import RigConfig
 
 
