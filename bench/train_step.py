@@ -1,0 +1,160 @@
+"""Where the time of one training iteration goes, by component, at several sizes.
+
+    python bench/train_step.py --out bench/results/train_step
+    python bench/train_step.py --out /tmp/ts --sizes 160x120:10000 --methods dtg,dtg-mlp --steps 40
+
+For each (method, size W x H : N Gaussians) a simulated family scene (10 time steps) is trained
+with N initial points and no densification (N stays fixed); after --warmup iterations, --steps
+iterations are timed. Each component is timed *exclusively* (time inside a nested component is
+its own): the native kernels (projection / rasterization, forward and backward), the deformation
+networks' forward, the time embedding, the rigid motion bodies, SSIM's forward, the k-NN
+smoothness, routing, autograd's own backward of the torch ops (the networks', SSIM's, ...: what
+`loss.backward()` spends outside the native kernels), Adam, densification statistics and the
+window's body search; "other" is the rest of the step (Python, loss arithmetic, indexing).
+Writes train_step.json and train_step.md in --out.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from recon.config import make_config  # noqa: E402
+from recon.data import load_dataset  # noqa: E402
+from recon.data.simulate import SimulateConfig, simulate_dataset  # noqa: E402
+from recon.scene import Scene  # noqa: E402
+from recon.train.trainer import Trainer  # noqa: E402
+
+
+class Timers:
+    """Exclusive wall time per label: a wrapped call's time minus that of wrapped calls inside it."""
+
+    def __init__(self):
+        self.total = defaultdict(float)
+        self.stack: list[list] = []          # [label, start, time of nested calls]
+        self.originals: dict = {}
+
+    def wrap(self, owner, name: str, label: str):
+        fn = getattr(owner, name)
+        self.originals[(owner, name)] = fn
+
+        def timed(*args, **kwargs):
+            self.stack.append([label, time.perf_counter(), 0.0])
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                lab, start, nested = self.stack.pop()
+                spent = time.perf_counter() - start
+                self.total[lab] += spent - nested
+                if self.stack:
+                    self.stack[-1][2] += spent
+        setattr(owner, name, timed)
+        return fn
+
+    def restore(self) -> None:
+        for (owner, name), fn in self.originals.items():
+            setattr(owner, name, fn)
+
+
+def instrument(t: Timers) -> None:
+    import recon.eval as ev
+    from recon.dtg import deformation, losses, model, routing, strategy, time_embedding
+    from recon.splat import _native
+    from recon.train import trainer
+    for name, label in (("project_forward", "projection fwd"), ("project_backward", "projection bwd"),
+                        ("rasterize_forward", "rasterize fwd"), ("rasterize_backward", "rasterize bwd")):
+        t.wrap(_native, name, label)
+    t.wrap(deformation.DeformationNet, "forward", "deformation nets fwd")
+    t.wrap(time_embedding.TimeEmbedding, "forward", "time embedding")
+    t.wrap(model, "apply_motion", "motion bodies")
+    ssim = t.wrap(losses, "ssim", "ssim fwd")
+    assert ssim is ev.ssim
+    t.wrap(losses.EmbeddingSmoothness, "__call__", "k-NN smoothness")
+    for name in ("assignment", "kl_to_prior"):
+        t.wrap(routing, name, "routing")
+    t.wrap(torch.Tensor, "backward", "autograd bwd (torch ops)")
+    t.wrap(torch.optim.Adam, "step", "adam")
+    t.wrap(strategy.Strategy, "accumulate", "densify stats")
+    t.wrap(strategy.Strategy, "step", "densify")
+    t.wrap(trainer, "place_bases", "window body search")
+
+
+def measure(method: str, width: int, height: int, n: int, steps: int, warmup: int, threads: int,
+            work: Path) -> dict:
+    data = work / f"fam-{width}x{height}-{n}"
+    if not (data / "transforms.json").exists():
+        simulate_dataset(data, SimulateConfig(variant="family-inside", frames=10, width=width, height=height,
+                                              seed=0, points=n))
+    scene = Scene(load_dataset(data))
+    cfg = make_config(method, iterations=3000, threads=threads, log_every=10**9, checkpoint_every=10**9,
+                      eval_every=10**9, max_points=n)
+    cfg.densify.start = 2.0                 # never: N stays fixed
+    cfg.stop.converge = False
+    trainer = Trainer(cfg, scene, log=lambda _: None)
+    for _ in range(warmup):
+        trainer.step()
+    timers = Timers()
+    instrument(timers)
+    per_step = []
+    try:
+        for _ in range(steps):
+            t0 = time.perf_counter()
+            trainer.step()
+            per_step.append(time.perf_counter() - t0)
+    finally:
+        timers.restore()
+    total = sum(per_step)
+    parts = {k: 1000 * v / steps for k, v in sorted(timers.total.items(), key=lambda kv: -kv[1])}
+    parts["other (python, loss arithmetic, indexing)"] = 1000 * total / steps - sum(parts.values())
+    return {"method": method, "size": f"{width}x{height}", "gaussians": trainer.model.num_gaussians,
+            "threads": threads, "steps": steps, "ms_per_it": 1000 * total / steps,
+            "ms_per_it_median": 1000 * statistics.median(per_step), "ms": parts}
+
+
+def markdown(rows: list[dict]) -> str:
+    labels = list(dict.fromkeys(k for r in rows for k in r["ms"]))
+    head = "| component (ms per iteration) | " + " | ".join(f"{r['method']} {r['size']} {r['gaussians'] // 1000}k"
+                                                         for r in rows) + " |"
+    lines = [head, "|---|" + "---|" * len(rows)]
+    lines.append("| **whole iteration** (mean) | " + " | ".join(f"**{r['ms_per_it']:.1f}**" for r in rows) + " |")
+    for k in labels:
+        lines.append(f"| {k} | " + " | ".join(f"{r['ms'].get(k, 0.0):.1f}" for r in rows) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--methods", default="dtg,dtg-mlp")
+    ap.add_argument("--sizes", default="160x120:10000,320x240:50000,640x480:100000",
+                    help="W x H : Gaussians, comma-separated")
+    ap.add_argument("--steps", type=int, default=30)
+    ap.add_argument("--warmup", type=int, default=10)
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for size in args.sizes.split(","):
+            wh, n = size.split(":")
+            w, h = (int(v) for v in wh.split("x"))
+            for method in args.methods.split(","):
+                row = measure(method, w, h, int(n), args.steps, args.warmup, args.threads, Path(tmp))
+                rows.append(row)
+                print(f"{method} {w}x{h} {row['gaussians']} Gaussians: {row['ms_per_it']:.1f} ms/it", flush=True)
+    (args.out / "train_step.json").write_text(json.dumps(rows, indent=1))
+    (args.out / "train_step.md").write_text(markdown(rows))
+    print(markdown(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
