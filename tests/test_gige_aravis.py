@@ -172,3 +172,18 @@ def test_lossy_peer_without_resend_is_counted(aravis):
     bad = [f for f in frames if not f.complete]
     assert bad and stats.resend_requests == 0
     assert stats.missing_packets >= len(bad) and all(f.missing_packets > 0 for f in bad)
+
+
+def test_capture_from_a_camera_without_irformat_is_one_line(aravis, tmp_path, capsys):
+    """Aravis's fake is a standard GigE Vision camera with no FLIR radiometric features: `rig
+    capture` refuses it in one line naming the camera and the missing feature (exit 2), and leaves
+    no session folder behind."""
+    from rig.cli import main as rig_main
+    out = tmp_path / "s"
+    assert rig_main(["capture", "--camera", URL, "--duration", "2", "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert lines[0].startswith("rig capture:") and "Aravis" in lines[0] and "IRFormat" in lines[0]
+    assert not out.exists() or not any(out.iterdir())
+    assert any(d.manufacturer == "Aravis" for d in discover(["127.0.0.1"], timeout_s=0.5))   # still usable

@@ -70,7 +70,11 @@ def open_devices(cfg: CaptureConfig, out: Path) -> Devices:
                  "host": platform.node(), "created": dt.datetime.now(dt.timezone.utc).isoformat()})
     if cfg.camera:
         dev.camera = flir.FlirA700.open(cfg.camera)
-        dev.camera.configure(cfg.ir_format)
+        try:
+            dev.camera.configure(cfg.ir_format)
+        except Exception:
+            dev.camera.close()          # the control channel's heartbeat must not outlive a refusal
+            raise
         cam = dev.camera.camera
         meta["thermal"] = {"source": cfg.camera, "tick_hz": cam.tick_hz,
                            "device": asdict(cam.info) if cam.info else None}

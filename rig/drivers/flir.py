@@ -149,6 +149,10 @@ class Epoch:
                 "calibration": asdict(self.calibration) if self.calibration else None}
 
 
+class UnsupportedCamera(ValueError):
+    """The device lacks a feature this profile needs; the message names the camera and the feature."""
+
+
 @dataclass
 class FlirA700:
     """FLIR A700 on top of a `GigECamera`. `next_frame()` returns frames tagged with
@@ -173,6 +177,14 @@ class FlirA700:
         if ir_format not in IR_FORMATS:
             raise ValueError(f"unknown IRFormat {ir_format!r}; expected one of {IR_FORMATS}")
         f = self.features
+        missing = [n for n in ("PixelFormat", "Width", "Height", "IRFormat") if not f.has(n)]
+        if missing:
+            info = self.camera.info
+            name = f"{info.manufacturer} {info.model}".strip() if info else "the camera"
+            raise UnsupportedCamera(
+                f"{name} has no GenICam feature {', '.join(missing)}: it is not a radiometric FLIR "
+                f"A400/A500/A700, the only thermal cameras `rig capture` records today; capture "
+                f"without --camera (simulated thermal camera) or use one of those")
         f.set("PixelFormat", "Mono16")
         f.set("Width", width)
         f.set("Height", height)
