@@ -108,7 +108,7 @@ def apply_motion(means: torch.Tensor, quats: torch.Tensor, basis: torch.Tensor, 
     g = gate[moving, None]
     new_mu = mu + g * (moved - mu)
     q = quats[moving]
-    qr = quat_multiply(axis_angle_to_quat(rot * 1.0)[b], q)
+    qr = quat_multiply(axis_angle_to_quat(rot)[b], q)
     new_q = q + g * (qr - q)
     means = means.index_copy(0, moving, new_mu)
     quats = quats.index_copy(0, moving, new_q)

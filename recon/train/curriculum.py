@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import torch
 
+from recon.dtg.motion import apply_motion
 from recon.render import render_frame
 
 
@@ -162,37 +163,34 @@ def frame_loss(model, frames, t: float) -> float:
 
 @torch.no_grad()
 def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.0,
-                pixel_steps: tuple[float, ...] = (6.0, 3.0), depth_step: float = 0.0) -> dict[int, list[float]]:
+                pixel_steps: tuple[float, ...] = (6.0, 3.0)) -> None:
     """Where each motion basis is at a time step the window just took in: a coarse search before
     the gradient refines it. The knots of the new step (and beyond, on `side` 'lo' or 'hi') start
     at constant velocity; for each basis with Gaussians near the view, offsets of (pixel_steps)
-    pixels across the first frame's image plane (a 3x3 grid per step size, best kept) and, with
-    depth_step > 0, of +-depth_step of its depth along the view ray are tried, and the one with
-    the lowest loss over `frames` (the views at t) is kept. Depth is left to the trajectory
-    smoothness (MotionBases.smoothness): one view pins it poorly. Photometric gradients only pull an object that already overlaps its
-    image; a search finds one that the constant-velocity guess missed by a few pixels.
-    Returns {basis: offset (3,)} of the bases it moved."""
-    from recon.dtg.motion import apply_motion
+    pixels across the first frame's image plane (a 3x3 grid per step size, best kept) are tried,
+    and the one with the lowest loss over `frames` (the views at t) is kept. Depth is left to the
+    trajectory smoothness (MotionBases.smoothness): one view pins it poorly. Photometric gradients
+    only pull an object that already overlaps its image; a search finds one that the
+    constant-velocity guess missed by a few pixels."""
     motion = model.motion
     if motion is None or not frames or motion.count == 0:
-        return {}
+        return
     g = model.gaussians
     knots = motion.translation.shape[1]
     x = t * (knots - 1)
     rows = torch.arange(knots)
     rows = rows[rows >= round(x)] if side == "hi" else rows[rows <= round(x)]
     basis = g["motion_basis"].long()
-    weight = torch.sigmoid(g[f"opacity_{frames[0][0]}"]) * model.dynamic_gate()
+    gate = model.dynamic_gate()
+    weight = torch.sigmoid(g[f"opacity_{frames[0][0]}"]) * gate
     cam = frames[0][1].camera
     rot = cam.viewmat[:3, :3]
-    moved = {}
     current = frame_loss(model, frames, t)
     for b in range(motion.count):
         sel = basis == b + 1
         if float(weight[sel].sum()) < min_opacity_mass:
             continue
-        means, _ = apply_motion(g["means"][sel], g["quats"][sel], g["motion_basis"][sel],
-                                model.dynamic_gate()[sel], motion, t)
+        means, _ = apply_motion(g["means"][sel], g["quats"][sel], g["motion_basis"][sel], gate[sel], motion, t)
         pc = means @ rot.T + cam.viewmat[:3, 3]
         u = cam.fx * pc[:, 0] / pc[:, 2].clamp_min(1e-6) + cam.cx
         v = cam.fy * pc[:, 1] / pc[:, 2].clamp_min(1e-6) + cam.cy
@@ -205,7 +203,6 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
         depth = float(rot[2] @ centre + cam.viewmat[2, 3])
         if depth <= 1e-3:
             continue
-        total = torch.zeros(3)
         # a fast object may be further off its constant-velocity guess: steps grow with its speed
         k = int(rows[0]) if side == "hi" else int(rows[-1])
         k_prev = k - 1 if side == "hi" else k + 1
@@ -215,8 +212,6 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
         steps = [max(s, 0.5 ** i * 0.5 * speed) for i, s in enumerate(pixel_steps)]
         candidates = [[(i * s * depth / cam.fx) * rot[0] + (j * s * depth / cam.fy) * rot[1]
                        for i in (-1, 0, 1) for j in (-1, 0, 1)] for s in steps]
-        if depth_step > 0:
-            candidates.append([k * depth_step * depth * rot[2] for k in (-1, 0, 1)])
         for group in candidates:
             best, best_loss = torch.zeros(3), current
             for offset in group:
@@ -229,8 +224,4 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
                     best, best_loss = offset, loss
             if best.abs().sum():
                 motion.translation.data[b, rows] += best
-                total += best
                 current = best_loss
-        if total.abs().sum():
-            moved[b] = total.tolist()
-    return moved
