@@ -7,6 +7,11 @@
 
 Either folder may be None (a capture without training, or training without a session) or may
 not exist yet: endpoints answer 503 with {} until something is published.
+
+    handle = serve("127.0.0.1", 8765, batch_dir="runs/b1")   # a `recon batch` folder
+
+serves /api/batch (RUNS/batch.json) and, per job, the run page at /job/N/ (N = index into
+batch.json's jobs; its API and render URLs read RUNS/<jobs[N].run_dir>/, which must lie inside RUNS).
 """
 from __future__ import annotations
 
@@ -17,6 +22,7 @@ from http.server import ThreadingHTTPServer
 from importlib import resources
 from pathlib import Path
 
+from server.batch_reader import BatchReader, JobError
 from server.handler import StatusHandler
 from server.run_reader import RunReader, is_render_name
 from server.session_monitor import SessionMonitor
@@ -26,17 +32,25 @@ DEFAULT_PORT = 8765
 MAX_CONNECTIONS = 32          # each connection holds a thread; more are refused at once
 
 
-class App:
-    """What the handler serves: the page, the JSON endpoints and render files."""
+class View:
+    """What one page's URLs read: the root page's run, session and batch, or one job's run."""
 
-    def __init__(self, run_dir: Path | None, session_dir: Path | None, session_poll_s: float):
-        self.page = resources.files("server").joinpath("page.html").read_bytes()
-        self.run = RunReader(run_dir) if run_dir else None
-        self.session = SessionMonitor(session_dir, session_poll_s) if session_dir else None
+    def __init__(self, run: RunReader | None, session: SessionMonitor | None = None,
+                 batch: BatchReader | None = None, job: dict | None = None):
+        self.run, self.session, self.batch, self.job = run, session, batch, job
+
+    def config(self) -> dict:
+        run, ses = self.run, self.session
+        out = {"run": str(run.run_dir) if run else None, "session": str(ses.path) if ses else None}
+        if self.batch:
+            out["batch"] = str(self.batch.runs_dir)
+        if self.job:
+            out["job"] = self.job
+        return out
 
     def api(self, name: str, max_points: int):
         """JSON value of /api/NAME; None = nothing published yet; NotImplemented = no such endpoint."""
-        run, ses = self.run, self.session
+        run, ses, bat = self.run, self.session, self.batch
         table = {
             "status": lambda: run and run.status(),
             "metrics": lambda: run and run.metrics(max_points),
@@ -44,8 +58,8 @@ class App:
             "renders": lambda: run and run.renders(),
             "capture": lambda: ses and ses.capture(),
             "sync": lambda: ses and ses.sync(),
-            "config": lambda: {"run": str(run.run_dir) if run else None,
-                               "session": str(ses.path) if ses else None},
+            "batch": lambda: bat and bat.batch(),
+            "config": self.config,
         }
         return table[name]() if name in table else NotImplemented
 
@@ -54,9 +68,37 @@ class App:
             return None if is_render_name(set_name, file_name) else NotImplemented
         return self.run.render_file(set_name, file_name)
 
+
+class App:
+    """What the handler serves: the page, and the views it reads (the root one, one per batch job)."""
+
+    def __init__(self, run_dir: Path | None, session_dir: Path | None, session_poll_s: float,
+                 batch_dir: Path | None = None):
+        self.page = resources.files("server").joinpath("page.html").read_bytes()
+        self.batch = BatchReader(batch_dir) if batch_dir else None
+        self.root = View(RunReader(run_dir) if run_dir else None,
+                         SessionMonitor(session_dir, session_poll_s) if session_dir else None, self.batch)
+
+    def job_view(self, index: int) -> View | None:
+        """The view of /job/INDEX/: that job's run folder. None while batch.json does not exist;
+        raises JobError (404: no such job or no batch served; 403: run_dir outside the batch)."""
+        if self.batch is None:
+            raise JobError(404, "no batch is served")
+        found = self.batch.job(index)
+        if found is None:
+            return None
+        job, reader = found
+        return View(reader, job={"index": index, "name": job.get("name"), "state": job.get("state")})
+
+    def api(self, name: str, max_points: int):
+        return self.root.api(name, max_points)
+
+    def render_file(self, set_name: str, file_name: str):
+        return self.root.render_file(set_name, file_name)
+
     def close(self) -> None:
-        if self.session:
-            self.session.stop()
+        if self.root.session:
+            self.root.session.stop()
 
 
 class StatusServer(ThreadingHTTPServer):
@@ -146,10 +188,12 @@ class ServerHandle:
 
 def serve(host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, run_dir: str | Path | None = None,
           session_dir: str | Path | None = None, verbose: bool = False,
-          session_poll_s: float = 1.0) -> ServerHandle:
+          session_poll_s: float = 1.0, batch_dir: str | Path | None = None) -> ServerHandle:
     """Start the status server in a daemon thread and return its handle (port 0: any free port).
+    batch_dir: a `recon batch` folder (RUNS/): /api/batch and one run page per job at /job/N/.
     Raises OSError if the address cannot be bound (e.g. the port is taken)."""
-    app = App(Path(run_dir) if run_dir else None, Path(session_dir) if session_dir else None, session_poll_s)
+    app = App(Path(run_dir) if run_dir else None, Path(session_dir) if session_dir else None, session_poll_s,
+              Path(batch_dir) if batch_dir else None)
     try:
         httpd = StatusServer((host, port), app, verbose)
     except OSError:

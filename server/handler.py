@@ -3,8 +3,10 @@
 GET and HEAD only. Request line <= 2 KiB (else 414), header block <= 16 KiB (else 431), no
 request body (413). Every path is matched against a fixed route table after percent-decoding;
 paths holding "..", a backslash or NUL are refused with 400, unknown paths get 404, so no file
-outside the whitelisted ones can be named. Replies carry Content-Length, Cache-Control: no-store
-and nosniff; a client that goes away mid-reply is counted, not raised.
+outside the whitelisted ones can be named. /job/N/... (a batch job's page) are the same routes
+for job N's run folder, N being an index into batch.json's jobs, never a path. Replies carry
+Content-Length, Cache-Control: no-store and nosniff; a client that goes away mid-reply is
+counted, not raised.
 """
 from __future__ import annotations
 
@@ -17,6 +19,8 @@ from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler
 from urllib.parse import parse_qs, unquote, urlsplit
 
+from server.batch_reader import JobError
+
 MAX_REQUEST_LINE = 2048
 MAX_HEADER_BYTES = 16 * 1024
 DEFAULT_POINTS = 500
@@ -26,6 +30,7 @@ JSON = "application/json"
 PAGE_CSP = ("default-src 'none'; img-src 'self' data:; style-src 'unsafe-inline'; "
             "script-src 'unsafe-inline'; connect-src 'self'; base-uri 'none'; form-action 'none'")
 RENDER_PATH = re.compile(r"/render/([^/]+)/([^/]+)")
+JOB_PATH = re.compile(r"/job/(0|[1-9][0-9]{0,5})(/.*)?", re.S)    # a batch job's page: index, rest
 DISCONNECTS = (BrokenPipeError, ConnectionResetError, ConnectionAbortedError, TimeoutError)
 LINGER_BYTES, LINGER_S = 1 << 20, 1.0
 
@@ -188,11 +193,33 @@ class StatusHandler(BaseHTTPRequestHandler):
 
     def route(self, path: str, query: dict) -> None:
         app = self.server.app
+        m = JOB_PATH.fullmatch(path)
+        if m is None:
+            self.route_view(app.root, path, query)
+            return
+        index = int(m.group(1))
+        if m.group(2) is None:            # /job/N: the page's relative URLs need the trailing slash
+            self.reply(HTTPStatus.MOVED_PERMANENTLY, {"error": "see /job/%d/" % index},
+                       headers={"Location": "/job/%d/" % index})
+            return
+        try:
+            view = app.job_view(index)
+        except JobError as exc:
+            self.reply(exc.status, {"error": str(exc)})
+            return
+        if view is None:                  # no batch.json yet
+            self.reply(HTTPStatus.SERVICE_UNAVAILABLE, {}, headers={"Retry-After": "1"})
+        else:
+            self.route_view(view, m.group(2), query)
+
+    def route_view(self, view, path: str, query: dict) -> None:
+        """The fixed routes of one page: at the root, or below /job/N/ for a batch job's run."""
         if path in ("/", "/index.html"):
-            self.reply(HTTPStatus.OK, app.page, "text/html; charset=utf-8", {"Content-Security-Policy": PAGE_CSP})
+            self.reply(HTTPStatus.OK, self.server.app.page, "text/html; charset=utf-8",
+                       {"Content-Security-Policy": PAGE_CSP})
             return
         if path.startswith("/api/"):
-            value = app.api(path[5:], int_param(query, "max", DEFAULT_POINTS, 2, MAX_POINTS))
+            value = view.api(path[5:], int_param(query, "max", DEFAULT_POINTS, 2, MAX_POINTS))
             if value is NotImplemented:
                 self.reply(HTTPStatus.NOT_FOUND, {"error": f"no endpoint {path}"})
             elif value is None:           # nothing published yet: not an error, come back later
@@ -201,7 +228,7 @@ class StatusHandler(BaseHTTPRequestHandler):
                 self.reply(HTTPStatus.OK, value)
             return
         m = RENDER_PATH.fullmatch(path)
-        found = app.render_file(*m.groups()) if m else NotImplemented
+        found = view.render_file(*m.groups()) if m else NotImplemented
         if found is NotImplemented:
             self.reply(HTTPStatus.NOT_FOUND, {"error": f"no such path {path[:80]}"})
         elif found is None:

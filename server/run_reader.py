@@ -78,10 +78,11 @@ class CachedFile:
             return None
 
 
-def _read_json(path: Path) -> dict | None:
+def read_json(path: Path, limit: int = MAX_JSON_BYTES) -> dict | None:
+    """A JSON object file of at most `limit` bytes; None if larger or not an object."""
     with open(path, "rb") as f:
-        data = f.read(MAX_JSON_BYTES + 1)
-    if len(data) > MAX_JSON_BYTES:
+        data = f.read(limit + 1)
+    if len(data) > limit:
         return None
     obj = json.loads(data)
     return obj if isinstance(obj, dict) else None
@@ -103,9 +104,9 @@ class RunReader:
     def __init__(self, run_dir: str | Path):
         self.run_dir = Path(run_dir)
         self.live = self.run_dir / "live"
-        self._status = CachedFile(self.live / "status.json", _read_json)
+        self._status = CachedFile(self.live / "status.json", read_json)
         self._metrics = CachedFile(self.live / "metrics.jsonl", _read_metrics)
-        self._renders = CachedFile(self.live / "renders.json", _read_json)
+        self._renders = CachedFile(self.live / "renders.json", read_json)
 
     def status(self) -> dict | None:
         """status.json plus age_s (seconds since the trainer wrote it), or None before the first."""
