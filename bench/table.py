@@ -20,17 +20,20 @@ moving-hot, static), then finishes the run as `recon run` does. Writes, in --out
                              accuracy against the Gaussian count
   data/<scene>-s<seed>/, runs/<scene>-s<seed>/<method>/   datasets and complete runs (reused)
 
---jobs N trains N runs at once, each on --threads threads (default 1 with several jobs): every
-method then runs under the same conditions, so equal wall time stays a fair comparison.
+The grid runs as a batch, through `recon batch`'s mechanism (recon/batch/ray_runner.py): one
+Ray task per run, finished runs skipped when the command is run again, a failed run reported
+without stopping the others, runs/batch.json for the status page (`python -m server --batch
+OUT/runs`). --jobs N trains N runs at once on a local Ray runtime, each on --threads threads
+(default 1 with several jobs): every method then runs under the same conditions, so equal wall
+time stays a fair comparison. --address runs the grid on a Ray cluster instead (docs/batch.md).
 """
 from __future__ import annotations
 
 import argparse
 import json
-import statistics
+import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -39,52 +42,15 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from recon.batch.jobs import Job, parse_seeds, read_json  # noqa: E402
+from recon.batch.ray_runner import run_batch  # noqa: E402
+from recon.batch.summary import aggregate, flatten, markdown, summarise  # noqa: E402
 from recon.config import DEFAULT_MINUTES, METHODS, make_config  # noqa: E402
 from recon.data import load_dataset  # noqa: E402
 from recon.data.simulate import SimulateConfig, simulate_dataset  # noqa: E402
 from recon.run import evaluate_model, finish  # noqa: E402
 from recon.scene import Scene  # noqa: E402
 from recon.train.trainer import Trainer  # noqa: E402
-
-# Summary columns: (key, header, digits, higher is better)
-COLUMNS = [("psnr_rgb", "RGB PSNR", 2, True), ("psnr_rgb_moving", "RGB PSNR moving", 2, True),
-           ("psnr_thermal", "th PSNR", 2, True), ("mae_k_thermal", "th MAE K", 2, False),
-           ("mae_k_moving", "MAE moving", 2, False), ("mae_k_moving_hot", "MAE moving-hot", 2, False),
-           ("mae_k_static", "MAE static", 2, False), ("p95_k_moving", "p95 moving", 1, False),
-           ("gaussians", "Gaussians", 0, None), ("iterations", "it", 0, None), ("train_s", "train s", 0, None),
-           ("ms_per_it", "ms/it", 1, None)]
-
-
-def parse_seeds(text: str) -> list[int]:
-    """'0-3,7' -> [0, 1, 2, 3, 7]"""
-    out = []
-    for part in filter(None, text.split(",")):
-        lo, _, hi = part.partition("-")
-        out += list(range(int(lo), int(hi or lo) + 1))
-    return out
-
-
-def flatten(metrics: dict) -> dict:
-    """evaluate_model()/metrics.json metrics -> the flat summary keys of COLUMNS."""
-    get = lambda *path: _dig(metrics, path)  # noqa: E731
-    return {"psnr_rgb": get("rgb", "psnr"), "ssim_rgb": get("rgb", "ssim"),
-            "psnr_thermal": get("thermal", "psnr"), "ssim_thermal": get("thermal", "ssim"),
-            "mae_k_thermal": get("thermal", "mae_k"),
-            "psnr_rgb_moving": get("regions", "rgb", "moving", "psnr"),
-            "mae_k_moving": get("regions", "thermal", "moving", "mae_k"),
-            "mae_k_moving_hot": get("regions", "thermal", "moving_hot", "mae_k"),
-            "mae_k_static": get("regions", "thermal", "static", "mae_k"),
-            "mae_k_hot": get("regions", "thermal", "hot", "mae_k"),
-            "p95_k_moving": get("regions", "thermal", "moving", "p95_k")}
-
-
-def _dig(d, path):
-    for key in path:
-        if not isinstance(d, dict) or d.get(key) is None:
-            return None
-        d = d[key]
-    return d
-
 
 def apply_overrides(cfg, overrides: dict) -> None:
     """{"priors.rigidity": 4, "model.deform_geometry": ["rgb"]} -> set on the TrainConfig."""
@@ -147,68 +113,28 @@ def peak_rss_mb() -> float | None:
     return None
 
 
-def run_one(job: dict) -> dict:
-    """Train, grade and finish one (scene, seed, method); returns its summary row and curve.
-    Runs in a worker process: everything it needs is in `job`."""
-    torch.set_num_threads(job["threads"]) if job["threads"] else None
-    data, run_dir, method = Path(job["data"]), Path(job["run_dir"]), job["method"]
-    log = lambda msg: print(f"[{job['scene']} s{job['seed']} {method}] {msg}", flush=True)  # noqa: E731
-    done = run_dir / "metrics.json"
-    if done.exists() and (run_dir / "curve.json").exists():
-        summary = json.loads(done.read_text())
-        return {"summary": summary, "curve": json.loads((run_dir / "curve.json").read_text()), **job}
-    base, overrides = job["variants"].get(method, (method, {}))
-    cfg = make_config(base, minutes=job["minutes"], log_every=10**9, checkpoint_every=10**9)
-    cfg.method = method
-    cfg.stop.converge = job["converge"]
+def table_work(job: Job, run_dir: Path, resume: bool) -> int:
+    """One grid point as a batch job's work (recon.batch.execute): train with the evaluation
+    curve, grade and finish into run_dir. Everything it needs is in job.spec; an interrupted
+    run starts over (its curve is wall-clock based)."""
+    spec = job.spec
+    torch.set_num_threads(job.threads)
+    log = lambda msg: print(f"[{spec['scene']} s{spec['seed']} {job.method}] {msg}", flush=True)  # noqa: E731
+    base, overrides = spec["variants"].get(job.method, (job.method, {}))
+    cfg = make_config(base, minutes=spec["minutes"], log_every=10**9, checkpoint_every=10**9, threads=job.threads)
+    cfg.method = job.method
+    cfg.stop.converge = spec["converge"]
     apply_overrides(cfg, overrides)
-    scene = Scene(load_dataset(data))
+    scene = Scene(load_dataset(Path(job.input)))
     t0 = time.perf_counter()
     reset_peak_rss()
-    trainer, curve = train_with_curve(cfg, scene, run_dir, job["checkpoints"], log)
-    summary = finish(trainer, run_dir, data)
+    trainer, curve = train_with_curve(cfg, scene, run_dir, spec["checkpoints"], log)
+    summary = finish(trainer, run_dir, Path(job.input))
     summary["peak_rss_mb"] = peak_rss_mb()
-    done.write_text(json.dumps(summary, indent=2))
+    (run_dir / "metrics.json").write_text(json.dumps(summary, indent=2))
     (run_dir / "curve.json").write_text(json.dumps(curve, indent=1))
     log(f"done in {time.perf_counter() - t0:.0f} s wall ({summary['stop_reason']})")
-    return {"summary": summary, "curve": curve, **job}
-
-
-def summarise(summary: dict) -> dict:
-    return {**flatten(summary["metrics"]), "gaussians": summary["gaussians"],
-            "roles": summary["gaussians_per_role"], "model_mb": summary["model_bytes"] / 1e6,
-            "train_s": summary["train_seconds"], "iterations": summary["iterations"],
-            "ms_per_it": 1000 * summary["train_seconds"] / max(summary["iterations"], 1),
-            "peak_rss_mb": summary.get("peak_rss_mb"), "stop_reason": summary.get("stop_reason"),
-            "events": len(summary.get("events", []))}
-
-
-def aggregate(rows: list[dict]) -> dict:
-    """Median and worst over seeds of every column (worst: lowest PSNR, highest error)."""
-    out = {"seeds": len(rows), "events": sum(r.get("events", 0) for r in rows)}
-    for key, _, _, higher in COLUMNS:
-        vals = [r[key] for r in rows if r.get(key) is not None]
-        if not vals:
-            continue
-        out[key] = statistics.median(vals)
-        if higher is not None:
-            out[f"{key}_worst"] = min(vals) if higher else max(vals)
-    return out
-
-
-def markdown(groups: dict[str, dict[str, dict]], title: str) -> str:
-    """One table: rows method, cells 'median (worst)'."""
-    def cell(agg, key, digits, higher):
-        if agg.get(key) is None:
-            return "–"
-        text = f"{agg[key]:.{digits}f}"
-        return text + (f" ({agg[key + '_worst']:.{digits}f})" if higher is not None and agg["seeds"] > 1 else "")
-    lines = [f"**{title}**", "", "| method | seeds | " + " | ".join(c[1] for c in COLUMNS) + " | rollbacks |",
-             "|---|---|" + "---|" * (len(COLUMNS) + 1)]
-    for method, agg in groups.items():
-        lines.append(f"| {method} | {agg['seeds']} | " + " | ".join(cell(agg, k, d, h) for k, _, d, h in COLUMNS)
-                     + f" | {agg['events']} |")
-    return "\n".join(lines)
+    return 0
 
 
 def median_curve(curves: list[list[dict]], key: str, grid: np.ndarray) -> np.ndarray | None:
@@ -278,14 +204,11 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=40, help="time steps per scene (default 40)")
     ap.add_argument("--size", default="160x120")
     ap.add_argument("--checkpoints", type=int, default=8, help="evaluations per run (default 8)")
-    ap.add_argument("--jobs", type=int, default=1, help="runs at once (default 1)")
+    ap.add_argument("--jobs", type=int, default=1, help="runs at once on this machine (default 1)")
+    ap.add_argument("--address", help="a Ray cluster to run the grid on (default: a local Ray runtime)")
     ap.add_argument("--threads", type=int, default=None, help="threads per run (default: all; 1 with --jobs > 1)")
     args = ap.parse_args()
-    try:                                # the chart comes last: fail now, not after hours of training
-        import matplotlib  # noqa: F401
-    except ImportError:
-        raise SystemExit("bench/table.py draws speed_vs_accuracy.png with matplotlib: pip install -e '.[bench]'")
-    threads = args.threads if args.threads is not None else (1 if args.jobs > 1 else 0)
+    threads = args.threads or (1 if args.jobs > 1 else os.cpu_count())
     w, h = (int(v) for v in args.size.split("x"))
     scenes, methods, seeds = args.scenes.split(","), args.methods.split(","), parse_seeds(args.seeds)
     tuned = set(parse_seeds(args.tuned_seeds))
@@ -302,16 +225,22 @@ def main() -> int:
             if not (data / "transforms.json").exists():
                 print(f"simulating {name} ({args.frames} steps, {args.size})", flush=True)
                 simulate_dataset(data, SimulateConfig(variant=scene, frames=args.frames, width=w, height=h, seed=seed))
-            jobs += [{"scene": scene, "seed": seed, "method": m, "data": str(data),
-                      "run_dir": str(args.out / "runs" / name / m), "minutes": args.minutes,
-                      "converge": args.converge, "checkpoints": args.checkpoints, "threads": threads,
-                      "variants": variants}
+            jobs += [Job(f"{name}/{m}", str(data), m, seed, threads,
+                         {"scene": scene, "seed": seed, "minutes": args.minutes, "converge": args.converge,
+                          "checkpoints": args.checkpoints, "variants": variants})
                      for m in methods]
-    if args.jobs > 1:
-        with ProcessPoolExecutor(args.jobs) as pool:
-            results = list(pool.map(run_one, jobs))
-    else:
-        results = [run_one(job) for job in jobs]
+    # the grid runs as a batch (recon batch's mechanism: Ray tasks, finished runs skipped,
+    # RUNS/batch.json for the status page); --jobs caps the local runtime's CPUs
+    runs = args.out / "runs"
+    rows = run_batch(jobs, runs, work=table_work, address=args.address,
+                     local_cpus=args.jobs * threads, log=lambda msg: print(msg, flush=True))
+    failed = [r for r in rows if r["state"] == "failed"]
+    if failed:
+        print("failed: " + "; ".join(f"{r['name']}: {r['error']}" for r in failed))
+    results = [{"scene": j.spec["scene"], "seed": j.seed, "method": j.method,
+                "summary": read_json(j.run_dir(runs) / "metrics.json"),
+                "curve": json.loads((j.run_dir(runs) / "curve.json").read_text())}
+               for j, r in zip(jobs, rows) if r["state"] != "failed"]
     rows = [{**r, "row": summarise(r["summary"])} for r in results]
     parts, table = [], {"settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
                         "per_run": [], "aggregate": {}}

@@ -11,6 +11,7 @@ COMMANDS = [
     "recon.eval.cli",
     "recon.splat.cli",
     "recon.run",
+    "recon.batch.cli",
     "recon.render",
     "recon.demo",
 ]

@@ -221,7 +221,8 @@ def run(args: argparse.Namespace) -> int:
             return 2
     out.mkdir(parents=True, exist_ok=True)
     overrides = {k: v for k, v in {"iterations": args.iterations, "minutes": args.minutes,
-                                   "seed": args.seed, "threads": args.threads}.items() if v is not None}
+                                   "seed": args.seed, "threads": args.threads,
+                                   "checkpoint_every": args.checkpoint_every}.items() if v is not None}
     log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
     handle = serve_from_args(args, run_dir=out, session_dir=inp if kind == "session" else None)
     feed = TrainingFeed(LivePublisher(out))
@@ -302,6 +303,9 @@ def register(sub) -> None:
     p.add_argument("--fixed", action="store_true",
                    help="train for exactly --minutes (the schedule stretched to fit), not until converged")
     p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoints/latest.pt")
+    p.add_argument("--checkpoint-every", type=positive_int,
+                   help="iterations between checkpoints (default 500; a batch job on a cluster that may "
+                        "lose nodes wants them more often)")
     p.add_argument("--max-gaussians", type=positive_int, help="Gaussian budget (default: 0.5 per pixel of a training image, within 5k..100k)")
     p.add_argument("--auto-budget", action="store_true",
                    help="stop adding Gaussians when held-out PSNR stops improving")
