@@ -10,9 +10,12 @@ from rig.cli_format import HelpFormatter
 APPLE_VID = 0x05AC
 
 
-def gige_cameras(timeout_s: float = 0.5) -> list[dict]:
+def gige_cameras(timeout_s: float = 0.5, probe: bool = True) -> list[dict]:
+    """Discovered GigE Vision cameras; with probe, each one's profile (rig/drivers/profiles.py),
+    read from its GenICam XML (control is taken for a moment and released)."""
     from rig.drivers.gige import discover
-    return [{**asdict(d), "url": d.url} for d in discover(timeout_s=timeout_s)]
+    from rig.drivers.profiles import describe
+    return [{**asdict(d), "url": d.url, **(describe(d.url) if probe else {})} for d in discover(timeout_s=timeout_s)]
 
 
 def serial_boxes() -> list[dict]:
@@ -55,11 +58,14 @@ def register(sub) -> None:
                        epilog="example:\n  rig devices --json")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--timeout", type=float, default=0.5, help="GigE discovery wait, seconds")
+    p.add_argument("--no-probe", action="store_true",
+                   help="do not open each camera to read which profile it gets (a camera another host "
+                        "controls cannot be probed)")
     p.set_defaults(func=main)
 
 
 def main(args) -> int:
-    cams = gige_cameras(args.timeout)
+    cams = gige_cameras(args.timeout, probe=not args.no_probe)
     ports = serial_boxes()
     phone_list, phone_note = phones()
     if args.json:
@@ -68,6 +74,11 @@ def main(args) -> int:
     print("GigE Vision cameras:")
     for c in cams:
         print(f"  {c['url']:28s} {c['manufacturer']} {c['model']} serial {c['serial']} (mac {c['mac']})")
+        if c.get("profile"):
+            kind = "radiometric" if c["radiometric"] else "counts only: --kelvin-map for temperatures"
+            print(f"  {'':28s} profile {c['profile']} ({kind}), pixel formats {', '.join(c['pixel_formats'])}")
+        elif c.get("error"):
+            print(f"  {'':28s} profile unknown: {c['error']}")
     if not cams:
         print("  none answered discovery")
     print("Serial ports:")

@@ -20,6 +20,14 @@ def _sync_result(d: dict) -> SyncResult:
     return SyncResult(**{**d, "files": [FileSync(**f) for f in d["files"]]})
 
 
+def camera_profile(thermal_meta: dict) -> dict:
+    """What session.json says of the thermal camera: its profile and whether its counts are
+    temperatures (sessions older than profiles were all FLIR IRFormat: radiometric)."""
+    return {"profile": thermal_meta.get("profile", "flir-irformat"),
+            "radiometric": thermal_meta.get("radiometric", True),
+            "kelvin_map": thermal_meta.get("kelvin_map")}
+
+
 def session_info(session: Session, resync: bool = False) -> dict:
     """Summary dict of a session (works on a crashed or still-growing session)."""
     sync = None if resync else session.sync
@@ -38,7 +46,7 @@ def session_info(session: Session, resync: bool = False) -> dict:
                "missing_packets": int(sum(r.get("missing_packets", 0) for r in th)),
                "fps": round(_fps(th_t), 3),
                "ir_formats": sorted({r.get("ir_format") for r in th if r.get("ir_format")}),
-               "gaps": len(sync_res.thermal_gaps)}
+               "gaps": len(sync_res.thermal_gaps), **camera_profile(session.meta.get("thermal", {}))}
     rgb_t, dropped = [], 0
     files = sorted({r["file"] for r in session.rgb})
     for name in files:
@@ -97,6 +105,10 @@ def main(args) -> int:
     print(f"  duration   {info['duration_s']:.1f} s")
     print(f"  thermal    {th['frames']} frames ({th['complete']} complete, {th['incomplete']} incomplete, "
           f"{th['dropped']} dropped), {th['fps']:.2f} fps, {', '.join(th['ir_formats']) or '-'}")
+    kmap = th["kelvin_map"]
+    print(f"  camera     {th['profile']} profile, " + ("radiometric" if th["radiometric"] else
+          "NOT radiometric: " + (f"kelvin = counts x {kmap['gain_k']:g} + {kmap['offset_k']:g} (stated by the user)"
+                                 if kmap else "counts only, no temperatures")))
     print(f"  rgb        {rgb['frames']} frames in {rgb['files']} files ({rgb['dropped']} dropped), {rgb['fps']:.2f} fps")
     s = info["sync"]
     res = info["sync_residual_ms"]

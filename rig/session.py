@@ -232,7 +232,11 @@ class ThermalFrame:
         from rig.drivers import flir
         rec = self.record
         if rec.get("scale_k"):
-            return self.counts.astype(np.float64) * rec["scale_k"]
+            return self.counts.astype(np.float64) * rec["scale_k"] + rec.get("offset_k", 0.0)
+        if rec.get("ir_format") == "Counts":
+            raise ValueError(f"thermal frame {rec['i']}: raw counts of a camera without radiometric features "
+                             f"(generic profile) and no counts-to-kelvin map; record with `rig capture "
+                             f"--kelvin-map GAIN,OFFSET` to get temperatures")
         ep = self.epoch or {}
         cal = ep.get("calibration")
         return flir.counts_to_kelvin(self.counts, rec["ir_format"],

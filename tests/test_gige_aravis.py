@@ -174,16 +174,42 @@ def test_lossy_peer_without_resend_is_counted(aravis):
     assert stats.missing_packets >= len(bad) and all(f.missing_packets > 0 for f in bad)
 
 
-def test_capture_from_a_camera_without_irformat_is_one_line(aravis, tmp_path, capsys):
-    """Aravis's fake is a standard GigE Vision camera with no FLIR radiometric features: `rig
-    capture` refuses it in one line naming the camera and the missing feature (exit 2), and leaves
-    no session folder behind."""
+def test_capture_with_a_profile_the_camera_lacks_is_one_line(aravis, tmp_path, capsys):
+    """Aravis's fake is a standard GigE Vision camera with no FLIR radiometric features: forcing
+    the FLIR profile is refused in one line naming the camera and the missing feature (exit 2),
+    leaving no session behind and the camera free."""
     from rig.cli import main as rig_main
     out = tmp_path / "s"
-    assert rig_main(["capture", "--camera", URL, "--duration", "2", "--out", str(out), "--quiet"]) == 2
+    assert rig_main(["capture", "--camera", URL, "--profile", "flir-irformat", "--duration", "2", "--out", str(out),
+                     "--quiet"]) == 2
     err = capsys.readouterr().err
     lines = [line for line in err.splitlines() if line.strip()]
     assert len(lines) == 1 and "Traceback" not in err, err
     assert lines[0].startswith("rig capture:") and "Aravis" in lines[0] and "IRFormat" in lines[0]
     assert not out.exists() or not any(out.iterdir())
     assert any(d.manufacturer == "Aravis" for d in discover(["127.0.0.1"], timeout_s=0.5))   # still usable
+
+
+def test_the_whole_chain_on_a_generic_camera(aravis, tmp_path, capsys):
+    """Issue 15: `rig capture --camera gige://127.0.0.1` records Aravis's fake with the generic
+    profile (counts, marked non-radiometric), `rig info --json` reports complete frames at the
+    fake's rate, `recon prepare` refuses the phone-less session in one line."""
+    import json
+    from recon.cli import main as recon_main
+    from rig.cli import main as rig_main
+    aravis.restart()
+    out = tmp_path / "s"
+    assert rig_main(["capture", "--camera", URL, "--duration", "4", "--out", str(out), "--quiet"]) == 0
+    capsys.readouterr()
+    assert rig_main(["info", str(out), "--json"]) == 0
+    th = json.loads(capsys.readouterr().out)["streams"]["thermal"]
+    with GigECamera.open(URL) as cam:
+        rate = float(cam.features.get("AcquisitionFrameRate"))
+    assert th["profile"] == "generic" and th["radiometric"] is False and th["ir_formats"] == ["Counts"]
+    assert th["complete"] >= 0.95 * th["frames"] and th["frames"] >= 0.9 * 4 * rate, th
+    assert abs(th["fps"] - rate) < 0.1 * rate, (th["fps"], rate)
+    meta = json.loads((out / "session.json").read_text())["thermal"]
+    assert meta["packet_size"] == 1500 and meta["packet_size_tested"] is False      # the fake fires no test packet
+    assert recon_main(["prepare", str(out), str(tmp_path / "data")]) != 0
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1 and "no phone video" in err[0] and str(out) in err[0], err

@@ -232,3 +232,27 @@ def test_radiometric_frames_decode_with_object_parameters(make_fake):
     assert f.meta["object_parameters"]["emissivity"] == pytest.approx(0.9)
     t = f.timestamp / 1e9 - fake.config.clock_offset_s
     assert np.abs(a700.kelvin(f) - scene(t)).max() < 0.1
+
+
+@pytest.mark.parametrize("mtu", [1500, 4000, 9000, 1200])
+def test_packet_size_is_the_largest_test_packet_that_arrives(make_fake, mtu):
+    """GigE Vision test packets (SCPS fire_test_packet + do_not_fragment): the fake drops those
+    above its path MTU, as a router would; the negotiated size is never above one that arrived."""
+    from rig.drivers.gige.packet_size import negotiate_packet_size
+    fake = make_fake(path_mtu=mtu)
+    with GigECamera.open(fake.url) as cam:
+        result = negotiate_packet_size(cam.device)
+        assert result.tested and result.size == mtu - mtu % 4
+        assert (result.size, True) in result.probes and all(not ok for s, ok in result.probes if s > result.size)
+        assert cam.device.stream_packet_size() == result.size
+        cam.start_stream(StreamConfig(packet_size=0))           # 0: the negotiated size
+        frames = collect(cam, 3)
+        assert all(f.complete for f in frames)
+
+
+def test_a_camera_without_test_packets_keeps_the_default(make_fake):
+    from rig.drivers.gige.packet_size import negotiate_packet_size
+    fake = make_fake(test_packets=False)
+    with GigECamera.open(fake.url) as cam:
+        result = negotiate_packet_size(cam.device)
+    assert not result.tested and result.size == 1500 and "not negotiated" in result.describe()

@@ -94,6 +94,20 @@ def prepare_session(session_dir: str | Path, out_dir: str | Path, progress=print
             shutil.rmtree(out / ".work", ignore_errors=True)
 
 
+def check_streams(session, session_dir: Path) -> None:
+    """What no later step can make up for: phone frames (the poses come from them) and
+    temperatures (a camera without radiometric features needs a stated counts-to-kelvin map)."""
+    if not session.rgb:
+        raise PrepareError(f"{session_dir} holds no phone video or photos ({len(session.thermal)} thermal frames "
+                           f"only): poses come from the phone; record with `rig capture --phone-drop FOLDER` "
+                           f"(or add the phone's files with `rig import`)")
+    th = session.meta.get("thermal", {})
+    if th.get("radiometric") is False and not th.get("kelvin_map"):
+        raise PrepareError(f"{session_dir}: the thermal camera ({th.get('profile')} profile) recorded counts, "
+                           f"not temperatures; record with `rig capture --kelvin-map GAIN,OFFSET` (kelvin per "
+                           f"count and at count 0, from the camera's own calibration)")
+
+
 def _prepare(session_dir: Path, out: Path, opts: PrepareOptions, report: Report, say) -> Path:
     t_start = time.perf_counter()
     try:
@@ -103,6 +117,7 @@ def _prepare(session_dir: Path, out: Path, opts: PrepareOptions, report: Report,
     if not session.closed:
         report.warn("the session has no closed.json (still capturing, or it crashed): using the frames "
                     "committed so far")
+    check_streams(session, session_dir)
     cal, cal_source = find_calibration(session_dir, opts.calibration, session)
     report.calibration = {"source": cal_source, "method": cal.method, "baseline_m": round(cal.baseline_m, 5),
                           "rms_px": cal.rms_px}

@@ -1,6 +1,7 @@
 """`rig capture` on the command line: options, the status page beside it (--serve), one-line errors."""
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -8,11 +9,26 @@ from rig.capture.config import CaptureConfig
 from rig.capture.session_capture import Capture
 from rig.cli_format import HelpFormatter, positive_float
 from rig.drivers import flir
+from rig.drivers.generic_gige import KelvinMap
 from rig.drivers.gige import GvcpError
+from rig.drivers.profiles import PROFILES
 from rig.drivers.gige.features import GenicamXmlError
 from rig.drivers.syncbox import SyncBoxError
 from rig.sim.tabletop import VARIANTS
 from server.cli_options import add_serve_arguments, serve_from_args
+
+
+def packet_size(text: str) -> int:
+    """argparse type: 'auto' (0) or a packet size in 576..9000, a multiple of 4."""
+    if text == "auto":
+        return 0
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected auto or a number of bytes, got {text!r}") from None
+    if not 576 <= value <= 9000 or value % 4:
+        raise argparse.ArgumentTypeError(f"{value}: a packet size is 576..9000 bytes and a multiple of 4")
+    return value
 
 
 def register(sub) -> None:
@@ -28,14 +44,25 @@ def register(sub) -> None:
         epilog="examples:\n  rig capture --duration 10 --out /tmp/s1            # simulated rig\n"
                "  rig capture --phone-drop ~/Drop --duration 30      # real phone, simulated thermal camera\n"
                "  rig capture --camera gige://192.168.1.20 --phone-drop ~/Drop --syncbox /dev/ttyACM0\n"
+               "  rig capture --camera gige://192.168.1.30 --kelvin-map 0.01,0   # a non-FLIR camera\n"
                "  rig info /tmp/s1 --json")
     p.add_argument("--duration", type=positive_float, default=60.0, help="seconds to record")
     p.add_argument("--camera", help="thermal camera, gige://HOST[:PORT] (not named: simulated)")
     p.add_argument("--phone-drop", type=Path, help="folder where the phone's files arrive")
     p.add_argument("--syncbox", help="serial port of the sync box, e.g. /dev/ttyACM0")
     p.add_argument("--out", type=Path, help="session folder to create (default sessions/<date-time>)")
-    p.add_argument("--ir-format", default="TemperatureLinear10mK", choices=flir.IR_FORMATS)
-    p.add_argument("--packet-size", type=int, default=1500, help="GVSP packet size (SCPS), bytes")
+    p.add_argument("--ir-format", default="TemperatureLinear10mK", choices=flir.IR_FORMATS,
+                   help="FLIR IRFormat family: what the counts mean (10 mK: up to 382 C; 100 mK: hotter)")
+    p.add_argument("--profile", default="auto", choices=["auto", *PROFILES],
+                   help="camera profile; auto: from the camera's GenICam features (`rig devices` shows it)")
+    p.add_argument("--kelvin-map", metavar="GAIN,OFFSET|FILE.json",
+                   help="generic profile: kelvin = counts x GAIN + OFFSET (a non-radiometric camera's own "
+                        "calibration); without it a generic camera records counts only")
+    p.add_argument("--fps", type=positive_float, help="thermal frame rate (default: FLIR 30 Hz, others as set)")
+    p.add_argument("--packet-size", type=packet_size, default=0, metavar="auto|BYTES",
+                   help="GVSP packet size (SCPS) incl. IP/UDP/GVSP headers; auto: the largest test packet "
+                        "that crosses the path (jumbo frames if every hop carries them), 1500 if the camera "
+                        "fires none")
     p.add_argument("--settle", type=float, default=1.0, help="seconds a dropped file must stay unchanged")
     p.add_argument("--seed", type=int, default=0, help="simulated rig: scene seed")
     p.add_argument("--sim-scene", choices=["world", "calibration", "synthetic"], default="world",
@@ -62,9 +89,10 @@ def main(args) -> int:
                         packet_size=args.packet_size, settle_s=args.settle, seed=args.seed,
                         sim_lamp=not args.no_sim_lamp, sim_scene=args.sim_scene, sim_variant=args.sim_variant,
                         sim_keyframe_hz=args.sim_keyframes, sim_render_scale=args.sim_render_scale,
-                        progress=not args.quiet)
+                        progress=not args.quiet, profile=args.profile, frame_rate=args.fps)
     handle = None
     try:
+        cfg.kelvin_map = KelvinMap.parse(args.kelvin_map) if args.kelvin_map else None
         cap = Capture(cfg)
         handle = serve_from_args(args, session_dir=cap.out)
         summary = cap.run()

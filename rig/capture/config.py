@@ -14,7 +14,10 @@ class CaptureConfig:
     phone_drop: Path | None = None
     syncbox: str | None = None              # serial port
     ir_format: str = "TemperatureLinear10mK"
-    packet_size: int = 1500
+    profile: str = "auto"                   # camera profile (rig/drivers/profiles.py)
+    kelvin_map: object = None               # generic profile: KelvinMap from --kelvin-map
+    frame_rate: float | None = None         # thermal frame rate (None: FLIR 30 Hz, else the camera's)
+    packet_size: int = 0                    # GVSP packet size; 0: negotiated with test packets
     marker_period_s: float = 1.0            # sync-box lamp pulse period (more switches, finer sync)
     marker_on_s: float = 0.5
     settle_s: float = 1.0                   # drop-folder quiet time before a file counts

@@ -13,13 +13,14 @@ from rig.capture.config import CaptureConfig, CaptureStats, simulated_parts
 from rig.drivers import flir
 from rig.drivers.gige.stream import Frame
 from rig.drivers.phone import DropFolder
+from rig.drivers.profiles import open_thermal_camera
 
 
 @dataclass
 class Devices:
     sim_parts: tuple[str, ...]
     sim_drop_dir: Path                   # the simulated phone's drop folder
-    camera: object = None                # FlirA700 when a real camera is used
+    camera: object = None                # a ThermalCamera profile when a real camera is used
     sim_camera: object = None
     scene: object = None                 # the simulated world
     sim_phone: object = None
@@ -35,6 +36,11 @@ class Devices:
         return len(self.sim_parts) == 3
 
     @property
+    def frame_period_s(self) -> float:
+        rate = self.camera.frame_rate if self.camera is not None else None
+        return 1.0 / (rate or flir.A700_FPS)
+
+    @property
     def tick_hz(self) -> float:
         return self.camera.camera.tick_hz if self.camera is not None else self.sim_camera.tick_hz
 
@@ -45,7 +51,7 @@ class Devices:
     def epoch_meta(self, f: Frame) -> dict:
         if self.camera is not None:
             return self.camera.epochs[self.camera._epoch_index].meta()
-        return {"ir_format": f.meta.get("ir_format"), "scale_k": f.meta.get("scale_k")}
+        return {"ir_format": f.meta.get("ir_format"), "scale_k": f.meta.get("scale_k"), "radiometric": True}
 
     def new_camera_events(self) -> list[dict]:
         """What the camera profile logged since the last call (commanded NUCs, IRFormat changes)."""
@@ -69,15 +75,21 @@ def open_devices(cfg: CaptureConfig, out: Path) -> Devices:
                  "requested_duration_s": cfg.duration_s,
                  "host": platform.node(), "created": dt.datetime.now(dt.timezone.utc).isoformat()})
     if cfg.camera:
-        dev.camera = flir.FlirA700.open(cfg.camera)
-        try:
-            dev.camera.configure(cfg.ir_format)
-        except Exception:
-            dev.camera.close()          # the control channel's heartbeat must not outlive a refusal
-            raise
+        dev.camera = open_thermal_camera(cfg.camera, cfg.profile, cfg.ir_format, cfg.kelvin_map, cfg.frame_rate)
         cam = dev.camera.camera
+        if cfg.packet_size == 0:            # now, so session.json says what the stream will use
+            try:
+                cam.negotiate_packet_size()
+            except Exception:
+                dev.camera.close()
+                raise
+        kmap = getattr(dev.camera, "kelvin_map", None)
         meta["thermal"] = {"source": cfg.camera, "tick_hz": cam.tick_hz,
-                           "device": asdict(cam.info) if cam.info else None}
+                           "device": asdict(cam.info) if cam.info else None,
+                           "profile": dev.camera.profile, "radiometric": dev.camera.profile != "generic",
+                           "kelvin_map": kmap.as_dict() if kmap else None, "frame_rate": dev.camera.frame_rate,
+                           "packet_size": cfg.packet_size or cam.packet_size.size,
+                           "packet_size_tested": bool(cam.packet_size and cam.packet_size.tested)}
     else:
         from rig.simulated import Lamp, SimClock, SimThermalCamera, default_scene
         dev.lamp = Lamp() if cfg.sim_lamp and "syncbox" in dev.sim_parts else None
@@ -96,7 +108,8 @@ def open_devices(cfg: CaptureConfig, out: Path) -> Devices:
             # the simulated rig's "factory calibration": what a real rig gets from `rig calibrate`
             meta["sim_scene"] = dev.scene.describe()
         meta["thermal"] = {"source": "simulated", "tick_hz": dev.sim_camera.tick_hz,
-                           "device": {"model": "simulated FLIR A700"}}
+                           "device": {"model": "simulated FLIR A700"}, "profile": "flir-irformat",
+                           "radiometric": True}
     if cfg.phone_drop:
         dev.drop = DropFolder(cfg.phone_drop, settle_s=cfg.settle_s)
         meta["rgb"] = {"source": str(cfg.phone_drop)}

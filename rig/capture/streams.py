@@ -14,7 +14,6 @@ import numpy as np
 
 from rig.capture.config import CaptureConfig, CaptureStats
 from rig.capture.devices import Devices
-from rig.drivers import flir
 from rig.drivers.gige import gvsp
 from rig.drivers.gige.stream import Frame
 from rig.drivers.phone import PHOTO_SUFFIXES, probe_video, pts_drops
@@ -77,7 +76,7 @@ def thermal_writer(dev: Devices, writer: SessionWriter, frames: queue.Queue, sto
             if e != epoch:
                 writer.add_event({"event": "epoch", "epoch": e, **dev.epoch_meta(f), "host_ns": f.host_ns})
                 epoch = e
-            elif (pause := nuc_pause(last, f, 1 / flir.A700_FPS, tick_hz)) is not None:
+            elif (pause := nuc_pause(last, f, dev.frame_period_s, tick_hz)) is not None:
                 pauses.append({"event": "nuc", **pause, "frame": writer.n_thermal + len(items)})
             last = f
             counts = f.array()
@@ -87,6 +86,7 @@ def thermal_writer(dev: Devices, writer: SessionWriter, frames: queue.Queue, sto
                 "host_done_ns": f.host_done_ns, "width": f.width, "height": f.height,
                 "pixel_format": gvsp.PIXEL_FORMAT_NAMES.get(f.pixel_format, hex(f.pixel_format)),
                 "ir_format": f.meta.get("ir_format"), "scale_k": f.meta.get("scale_k"), "epoch": e,
+                **({"offset_k": f.meta["offset_k"]} if f.meta.get("offset_k") else {}),
                 "complete": f.complete, "missing_packets": f.missing_packets,
                 "resent_packets": f.resent_packets, "dropped_before": f.dropped_before,
                 "change": change_energy(prev if f.complete else None, th)}))

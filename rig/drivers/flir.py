@@ -23,12 +23,14 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from rig.drivers.gige.camera import GigECamera
-from rig.drivers.gige.stream import Frame, GvspStream, StreamConfig
+from rig.drivers.gige.stream import Frame
+from rig.drivers.thermal_camera import Epoch, ThermalCamera, UnsupportedCamera  # noqa: F401 (re-exported)
 
 log = logging.getLogger(__name__)
 
-IR_FORMAT_SCALE_K = {"TemperatureLinear10mK": 0.01, "TemperatureLinear100mK": 0.1}
+IR_FORMAT_SCALE_K = {"TemperatureLinear10mK": 0.01, "TemperatureLinear100mK": 0.1,
+                     # the Ax5 family's TemperatureLinearResolution High / Low (FlirTLinear below)
+                     "TemperatureLinear40mK": 0.04, "TemperatureLinear400mK": 0.4}
 IR_FORMATS = ("TemperatureLinear10mK", "TemperatureLinear100mK", "Radiometric")
 A700_WIDTH, A700_HEIGHT, A700_FPS = 640, 480, 30.0
 
@@ -132,43 +134,12 @@ def kelvin_to_counts(kelvin: np.ndarray, ir_format: str, params: ObjectParameter
 
 
 @dataclass
-class Epoch:
-    """What was in force from one AcquisitionStart on."""
-    start_ticks: int
-    ir_format: str
-    params: ObjectParameters
-    calibration: RadiometricCalibration | None
+class FlirA700(ThermalCamera):
+    """The FLIR IRFormat family (A400/A500/A700, A50/A70; the science cameras pyFlir drives
+    through the same feature) on top of a `GigECamera`. `next_frame()` returns frames tagged
+    with `meta` = IRFormat, kelvin/count scale, object parameters of their acquisition."""
 
-    @property
-    def scale_k(self) -> float | None:
-        return IR_FORMAT_SCALE_K.get(self.ir_format)
-
-    def meta(self) -> dict:
-        return {"ir_format": self.ir_format, "scale_k": self.scale_k,
-                "object_parameters": asdict(self.params),
-                "calibration": asdict(self.calibration) if self.calibration else None}
-
-
-class UnsupportedCamera(ValueError):
-    """The device lacks a feature this profile needs; the message names the camera and the feature."""
-
-
-@dataclass
-class FlirA700:
-    """FLIR A700 on top of a `GigECamera`. `next_frame()` returns frames tagged with
-    `meta` = IRFormat, kelvin/count scale, object parameters of their acquisition."""
-    camera: GigECamera
-    epochs: list[Epoch] = field(default_factory=list)
-    events: list[dict] = field(default_factory=list)     # NUCs and format changes, host time
-    _epoch_index: int = 0
-
-    @classmethod
-    def open(cls, url: str, **kw) -> FlirA700:
-        return cls(GigECamera.open(url, **kw))
-
-    @property
-    def features(self):
-        return self.camera.features
+    profile = "flir-irformat"
 
     def configure(self, ir_format: str = "TemperatureLinear10mK", width: int = A700_WIDTH,
                   height: int = A700_HEIGHT, frame_rate: float | None = A700_FPS,
@@ -176,20 +147,16 @@ class FlirA700:
         """Mono16, geometry, rate and IRFormat (before `start`)."""
         if ir_format not in IR_FORMATS:
             raise ValueError(f"unknown IRFormat {ir_format!r}; expected one of {IR_FORMATS}")
+        self.missing(("PixelFormat", "Width", "Height", "IRFormat"),
+                     "it is not a radiometric FLIR of the IRFormat family (A400/A500/A700); "
+                     "`rig capture --profile auto` picks the profile the camera's features allow")
         f = self.features
-        missing = [n for n in ("PixelFormat", "Width", "Height", "IRFormat") if not f.has(n)]
-        if missing:
-            info = self.camera.info
-            name = f"{info.manufacturer} {info.model}".strip() if info else "the camera"
-            raise UnsupportedCamera(
-                f"{name} has no GenICam feature {', '.join(missing)}: it is not a radiometric FLIR "
-                f"A400/A500/A700, the only thermal cameras `rig capture` records today; capture "
-                f"without --camera (simulated thermal camera) or use one of those")
         f.set("PixelFormat", "Mono16")
         f.set("Width", width)
         f.set("Height", height)
         if frame_rate and f.has("AcquisitionFrameRate"):
             f.set("AcquisitionFrameRate", float(frame_rate))
+        self.frame_rate = frame_rate
         f.set("IRFormat", ir_format)
         self.set_object_parameters(params or ObjectParameters())
 
@@ -209,12 +176,10 @@ class FlirA700:
             return None
         return RadiometricCalibration(**{n: f.get(n) for n in CALIBRATION_FEATURES})
 
-    def start(self, config: StreamConfig | None = None) -> GvspStream:
-        """AcquisitionStart, opening a new epoch at the latched device time."""
-        start_ticks, _ = self.camera.device.latch_timestamp()
-        self.epochs.append(Epoch(start_ticks, self.features.get("IRFormat"),
-                                 self.object_parameters(), self.calibration()))
-        return self.camera.start_stream(config)
+    def new_epoch(self, start_ticks: int) -> Epoch:
+        fmt = self.features.get("IRFormat")
+        return Epoch(start_ticks, fmt, IR_FORMAT_SCALE_K.get(fmt), params=self.object_parameters(),
+                     calibration=self.calibration())
 
     def set_ir_format(self, ir_format: str, host_ns: int | None = None) -> None:
         """Change IRFormat; while streaming, restart acquisition so it takes effect."""
@@ -222,8 +187,7 @@ class FlirA700:
         if streaming:
             self.camera.stop_acquisition()
         self.features.set("IRFormat", ir_format)
-        self.events.append({"event": "ir_format", "ir_format": ir_format,
-                            "host_ns": time.monotonic_ns() if host_ns is None else host_ns})
+        self.log_event({"event": "ir_format", "ir_format": ir_format}, host_ns)
         if streaming:
             self.start()
 
@@ -235,23 +199,45 @@ class FlirA700:
         self.events.append({"event": "nuc", "source": "command", "host_ns": host_ns,
                             "done_host_ns": time.monotonic_ns()})
 
-    def tag(self, frame: Frame) -> Frame:
-        """Attach the epoch in force when the frame was produced."""
-        if frame.has_leader:
-            while (self._epoch_index + 1 < len(self.epochs)
-                   and frame.timestamp >= self.epochs[self._epoch_index + 1].start_ticks):
-                self._epoch_index += 1
-        frame.meta.update(self.epochs[self._epoch_index].meta())
-        return frame
-
-    def next_frame(self, timeout: float | None = None) -> Frame:
-        return self.tag(self.camera.stream.get(timeout=timeout))
-
     def kelvin(self, frame: Frame) -> np.ndarray:
         """(H, W) float64 kelvin of a tagged frame."""
         m = frame.meta
         cal = RadiometricCalibration(**m["calibration"]) if m.get("calibration") else None
         return counts_to_kelvin(frame.array(), m["ir_format"], ObjectParameters(**m["object_parameters"]), cal)
 
-    def close(self) -> None:
-        self.camera.close()
+
+# TemperatureLinearResolution entry -> the IRFormat-style name of its scale (IR_FORMAT_SCALE_K)
+TLINEAR_RESOLUTION = {"High": "TemperatureLinear40mK", "Low": "TemperatureLinear400mK"}
+
+
+@dataclass
+class FlirTLinear(ThermalCamera):
+    """The FLIR families that name their temperature-linear output differently (A35/A65 and the
+    Ax5 line; the same features appear in public code for A6xx science cameras): no IRFormat;
+    `TemperatureLinearMode` On makes counts kelvin, `TemperatureLinearResolution` High = 0.04 K
+    per count, Low = 0.4 K (FLIR's Ax5 interface description, as used by public Spinnaker, eBUS
+    and Harvesters scripts). Pixels are Mono16 or Mono14 (14 bits in 16)."""
+
+    profile = "flir-tlinear"
+
+    def configure(self, resolution: str = "High", frame_rate: float | None = None, **_) -> None:
+        if resolution not in TLINEAR_RESOLUTION:
+            raise ValueError(f"TemperatureLinearResolution {resolution!r}: expected High or Low")
+        self.missing(("PixelFormat", "TemperatureLinearMode", "TemperatureLinearResolution"),
+                     "it is not a temperature-linear FLIR (Ax5 family)")
+        f = self.features
+        formats = f.node("PixelFormat").symbolics
+        pixel = next((p for p in ("Mono16", "Mono14") if p in formats), None)
+        if pixel is None:
+            raise UnsupportedCamera(f"{self.name} offers PixelFormat {', '.join(formats)}, none of Mono16/Mono14: "
+                                    f"temperature-linear counts need 14 or 16 bits")
+        f.set("PixelFormat", pixel)
+        f.set("TemperatureLinearMode", "On")
+        f.set("TemperatureLinearResolution", resolution)
+        if frame_rate and f.has("AcquisitionFrameRate"):
+            f.set("AcquisitionFrameRate", float(frame_rate))
+        self.frame_rate = float(f.get("AcquisitionFrameRate")) if f.has("AcquisitionFrameRate") else frame_rate
+
+    def new_epoch(self, start_ticks: int) -> Epoch:
+        fmt = TLINEAR_RESOLUTION[self.features.get("TemperatureLinearResolution")]
+        return Epoch(start_ticks, fmt, IR_FORMAT_SCALE_K[fmt])

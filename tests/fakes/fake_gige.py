@@ -48,7 +48,56 @@ REG = {"Width": DEV, "Height": DEV + 0x04, "SensorWidth": DEV + 0x08, "SensorHei
 OBJECT_REG = {name: DEV + 0x100 + 4 * i for i, name in enumerate(flir.OBJECT_FEATURES)}
 CAL_REG = {name: DEV + 0x200 + 4 * i
            for i, name in enumerate(("R", "B", "F", "X", "alpha1", "alpha2", "beta1", "beta2", "J1", "J0"))}
+REG["TemperatureLinearResolution"] = DEV + 0x2C   # the "ax5" variant's (TemperatureLinearMode reuses IRFormat's)
 IR_FORMAT_VALUES = {"Radiometric": 0, "TemperatureLinear100mK": 1, "TemperatureLinear10mK": 2}
+# The camera families the profiles tell apart (rig/drivers/profiles.py), as this fake's XML variants:
+#   a700     IRFormat (the XML file as it is)
+#   ax5      no IRFormat; TemperatureLinearMode (Off/On) + TemperatureLinearResolution (Low/High:
+#            0.4 / 0.04 K per count) and Mono14, as FLIR's A35/A65/Ax5 name them
+#   generic  no radiometric feature at all: a plain GigE Vision camera whose Mono16 counts are
+#            (kelvin - GENERIC_OFFSET_K) / GENERIC_GAIN_K, which a test states with --kelvin-map
+VARIANTS = ("a700", "ax5", "generic")
+GENERIC_GAIN_K, GENERIC_OFFSET_K = 0.02, 200.0
+IDENTITY = {"a700": ("FLIR Systems AB", "FLIR A700 (thermal4d fake)"),
+            "ax5": ("FLIR Systems AB", "FLIR A65 (thermal4d fake)"),
+            "generic": ("Generic Vision", "GV-16 (thermal4d fake)")}
+IRFORMAT_XML = """  <Enumeration Name="IRFormat">
+    <EnumEntry Name="Radiometric"><Value>0</Value></EnumEntry>
+    <EnumEntry Name="TemperatureLinear100mK"><Value>1</Value></EnumEntry>
+    <EnumEntry Name="TemperatureLinear10mK"><Value>2</Value></EnumEntry>
+    <pValue>IRFormatReg</pValue>
+  </Enumeration>
+"""
+TLINEAR_XML = f"""  <Enumeration Name="TemperatureLinearMode">
+    <EnumEntry Name="Off"><Value>0</Value></EnumEntry>
+    <EnumEntry Name="On"><Value>1</Value></EnumEntry>
+    <pValue>IRFormatReg</pValue>
+  </Enumeration>
+  <IntReg Name="TemperatureLinearResolutionReg">
+    <Address>{REG["TemperatureLinearResolution"]:#x}</Address><Length>4</Length><AccessMode>RW</AccessMode>
+    <pPort>Device</pPort><Sign>Unsigned</Sign><Endianess>BigEndian</Endianess>
+  </IntReg>
+  <Enumeration Name="TemperatureLinearResolution">
+    <EnumEntry Name="Low"><Value>0</Value></EnumEntry>
+    <EnumEntry Name="High"><Value>1</Value></EnumEntry>
+    <pValue>TemperatureLinearResolutionReg</pValue>
+  </Enumeration>
+"""
+
+
+def variant_xml(variant: str) -> bytes:
+    """The GenICam XML of a camera family (see VARIANTS): the A700 file with features renamed or removed."""
+    xml = XML_PATH.read_text()
+    assert IRFORMAT_XML in xml and variant in VARIANTS
+    if variant == "ax5":
+        xml = xml.replace(IRFORMAT_XML, TLINEAR_XML).replace('ModelName="A700"', 'ModelName="A65"')
+        xml = xml.replace("<pFeature>IRFormat</pFeature>", "<pFeature>TemperatureLinearMode</pFeature>")
+        xml = xml.replace('    <EnumEntry Name="Mono16">',
+                          '    <EnumEntry Name="Mono14"><Value>17825829</Value></EnumEntry>\n    <EnumEntry Name="Mono16">')
+    elif variant == "generic":
+        xml = xml.replace(IRFORMAT_XML, "").replace("<pFeature>IRFormat</pFeature>", "")
+        xml = xml.replace('ModelName="A700" VendorName="FLIR"', 'ModelName="GV-16" VendorName="Generic Vision"')
+    return xml.encode()
 IR_FORMAT_NAMES = {v: k for k, v in IR_FORMAT_VALUES.items()}
 READ_ONLY = {REG["SensorWidth"], REG["SensorHeight"], *CAL_REG.values()}
 
@@ -102,6 +151,10 @@ class FakeConfig:
     seed: int = 0
     serial: str = "FAKE0700"
     calibration: flir.RadiometricCalibration = field(default_factory=flir.RadiometricCalibration)
+    variant: str = "a700"              # camera family: a700, ax5, generic (VARIANTS)
+    path_mtu: int = 1500               # test packets (SCPS fire_test_packet) above this never arrive
+    max_packet_size: int = 9000        # sizes the camera can send: above, no test packet (GigE Vision)
+    test_packets: bool = True          # answer SCPS fire_test_packet at all
 
 
 class FakeGigECamera:
@@ -146,10 +199,11 @@ class FakeGigECamera:
         m[0x0A:0x10] = bytes([0x00, 0x40, 0x7F, 0x00, 0x07, 0x00])   # FLIR OUI 00:40:7F
         struct.pack_into(">I", m, 0x14, 0x5)                         # current IP config
         m[0x24:0x28] = ip
-        for off, text in ((0x48, "FLIR Systems AB"), (0x68, "FLIR A700 (thermal4d fake)"),
+        vendor, model = IDENTITY[c.variant]
+        for off, text in ((0x48, vendor), (0x68, model),
                           (0x88, "1.0"), (0xA8, "tests/fakes/fake_gige.py"), (0xD8, c.serial)):
             m[off:off + len(text)] = text.encode()
-        xml = XML_PATH.read_bytes()
+        xml = variant_xml(c.variant)
         if c.zipped_xml:
             buf = io.BytesIO()
             with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
@@ -172,7 +226,7 @@ class FakeGigECamera:
         self._set(REG["SensorWidth"], max(c.width, 640))
         self._set(REG["SensorHeight"], max(c.height, 480))
         self._set(REG["PixelFormat"], gvsp.PIXEL_FORMATS[c.pixel_format])
-        self._set(REG["IRFormat"], IR_FORMAT_VALUES[c.ir_format])
+        self._set(REG["IRFormat"], IR_FORMAT_VALUES[c.ir_format] if c.variant == "a700" else 0)
         self._set(REG["FramePeriod"], round(1e6 / c.fps))
         self._set(REG["NUCMode"], 1 if c.nuc_period_s else 0)
         for name, value in vars(flir.ObjectParameters()).items():
@@ -312,6 +366,9 @@ class FakeGigECamera:
             self._set(Reg.TIMESTAMP_VALUE_HIGH, ticks >> 32)
             self._set(Reg.TIMESTAMP_VALUE_LOW, ticks)
             return 0
+        elif addr == Reg.SCPS0 and value & 0x80000000:       # fire_test_packet (bit 0, MSB-first)
+            self._test_packet(value & 0xFFFF)
+            value &= 0x7FFFFFFF
         elif addr == REG["AcquisitionCommand"]:
             self._acquisition(bool(value))
             return 0
@@ -321,9 +378,20 @@ class FakeGigECamera:
         self._set(addr, value)
         return 0
 
+    def _test_packet(self, size: int) -> None:
+        """One datagram of IP size `size` (IP + UDP headers: 28 bytes) to the stream destination,
+        with don't-fragment: lost on a path whose MTU is smaller (self.config.path_mtu)."""
+        c = self.config
+        self.stats["test_packets"] += 1
+        dest = (socket.inet_ntoa(struct.pack(">I", self._get(Reg.SCDA0))), self._get(Reg.SCP0) & 0xFFFF)
+        if not c.test_packets or size > c.max_packet_size or size % 4 or dest[1] == 0:
+            return
+        if size <= c.path_mtu:
+            self.gvsp.sendto(bytes(size - 28), dest)
+
     def _acquisition(self, start: bool) -> None:
         if start and not self.acquiring:
-            fmt = IR_FORMAT_NAMES.get(self._get(REG["IRFormat"]), "TemperatureLinear10mK")
+            fmt = self._latched_format()
             params = flir.ObjectParameters(**{n: self._float(a) for n, a in OBJECT_REG.items()})
             self.latched = (fmt, params)
             self.block_id = self.config.first_block_id
@@ -376,6 +444,17 @@ class FakeGigECamera:
             self._send_block(dest, block_id, leader, data, packet_size)
             self.stats["frames"] += 1
 
+    def _latched_format(self) -> str:
+        """What the counts mean from this AcquisitionStart on (an IRFormat-style name)."""
+        variant, value = self.config.variant, self._get(REG["IRFormat"])
+        if variant == "generic":
+            return "Counts"
+        if variant == "ax5":
+            if not value:                  # TemperatureLinearMode Off: raw radiometric counts
+                return "Radiometric"
+            return ("TemperatureLinear400mK", "TemperatureLinear40mK")[self._get(REG["TemperatureLinearResolution"]) & 1]
+        return IR_FORMAT_NAMES.get(value, "TemperatureLinear10mK")
+
     def _render(self, t: float, w: int, h: int, pixfmt: int, fmt: str, params) -> bytes:
         kelvin = self.source(t)
         if kelvin.shape != (h, w):
@@ -383,7 +462,10 @@ class FakeGigECamera:
         if gvsp.bits_per_pixel(pixfmt) == 8:      # AGC video
             lo, hi = float(kelvin.min()), float(kelvin.max())
             return np.clip((kelvin - lo) * 255 / max(hi - lo, 1e-6), 0, 255).astype(np.uint8).tobytes()
-        counts = flir.kelvin_to_counts(kelvin, fmt, params, self.config.calibration)
+        if fmt == "Counts":
+            counts = np.clip(np.rint((kelvin - GENERIC_OFFSET_K) / GENERIC_GAIN_K), 0, 65535)
+        else:
+            counts = flir.kelvin_to_counts(kelvin, fmt, params, self.config.calibration)
         return counts.astype("<u2").tobytes()
 
     def _remember(self, block_id: int, leader: bytes, data: bytes) -> None:

@@ -9,11 +9,13 @@
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from urllib.parse import urlparse
 
 from rig.drivers.gige import gvcp, gvsp
 from rig.drivers.gige.device import ControlConfig, GigEDevice, discover
 from rig.drivers.gige.features import Features
+from rig.drivers.gige.packet_size import MAX_SIZE, PacketSizeResult, negotiate_packet_size
 from rig.drivers.gige.stream import GvspStream, StreamConfig
 
 log = logging.getLogger(__name__)
@@ -33,6 +35,7 @@ class GigECamera:
         self.info = info
         self.features = features
         self.stream: GvspStream | None = None
+        self.packet_size: PacketSizeResult | None = None      # once negotiated (packet_size 0)
         self.tick_hz = device.timestamp_frequency() or 1_000_000_000
 
     @classmethod
@@ -61,9 +64,25 @@ class GigECamera:
         return gvsp.ImageLeader(gvsp.PAYLOAD_TYPE_IMAGE, 0, pixfmt, int(f.get("Width")),
                                 int(f.get("Height")))
 
+    def negotiate_packet_size(self) -> PacketSizeResult:
+        """The stream packet size the path carries (test packets; once per camera), within the
+        camera's GevSCPSPacketSize maximum where its XML states one."""
+        if self.packet_size is None:
+            hi = MAX_SIZE
+            if self.features.has("GevSCPSPacketSize"):
+                try:
+                    hi = min(hi, int(self.features.node("GevSCPSPacketSize").max))
+                except Exception:    # noqa: BLE001 - no readable maximum: keep 9000
+                    pass
+            self.packet_size = negotiate_packet_size(self.device, hi=hi)
+            log.info("%s: %s", self.device.address, self.packet_size.describe())
+        return self.packet_size
+
     def start_stream(self, config: StreamConfig | None = None) -> GvspStream:
         """Open the receiver, point stream channel 0 at it, AcquisitionStart."""
         config = config or StreamConfig()
+        if self.stream is None and config.packet_size == 0:
+            config = replace(config, packet_size=self.negotiate_packet_size().size)
         if self.stream is None:
             self.stream = GvspStream(self.geometry(), self.device.address, self.device.port,
                                      host_ip=self.device.host_address(), config=config,

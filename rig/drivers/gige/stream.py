@@ -38,7 +38,8 @@ RESYNC_JUMP = 1000           # a forward jump bigger than this is a restart, not
 
 @dataclass
 class StreamConfig:
-    packet_size: int = 1500                 # SCPS: IP + UDP + GVSP headers + data
+    packet_size: int = 1500                 # SCPS: IP + UDP + GVSP headers + data; 0: negotiated
+                                            # with test packets (rig/drivers/gige/packet_size.py)
     resend: bool = True                     # only used if the device advertises PACKETRESEND
     initial_packet_timeout_s: float = 0.002
     packet_timeout_s: float = 0.02
