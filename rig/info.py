@@ -9,7 +9,7 @@ import numpy as np
 from rig.cli_format import HelpFormatter
 from rig.drivers.phone import pts_drops
 from rig.session import Session, open_session
-from rig.sync import SyncResult, FileSync, fit_clock, pair_frames, synchronise_session
+from rig.sync import SyncResult, FileSync, fit_clock, pair_frames, ptp_slave, synchronise_session
 
 
 def _fps(times_s: np.ndarray) -> float:
@@ -25,7 +25,7 @@ def camera_profile(thermal_meta: dict) -> dict:
     temperatures (sessions older than profiles were all FLIR IRFormat: radiometric)."""
     return {"profile": thermal_meta.get("profile", "flir-irformat"),
             "radiometric": thermal_meta.get("radiometric", True),
-            "kelvin_map": thermal_meta.get("kelvin_map")}
+            "kelvin_map": thermal_meta.get("kelvin_map"), "ptp": thermal_meta.get("ptp")}
 
 
 def session_info(session: Session, resync: bool = False) -> dict:
@@ -38,7 +38,7 @@ def session_info(session: Session, resync: bool = False) -> dict:
     th_t = np.array([r["host_ns"] for r in th], float) / 1e9
     if len(led) >= 2:
         clock = fit_clock(np.array([r["device_ts"] for r in led], float) / tick,
-                          np.array([r["host_ns"] for r in led], float) / 1e9)
+                          np.array([r["host_ns"] for r in led], float) / 1e9, fixed_rate=ptp_slave(session.meta))
         th_t = clock(np.array([r["device_ts"] for r in led], float) / tick)
     thermal = {"frames": len(th), "complete": sum(bool(r["complete"]) for r in th),
                "incomplete": sum(not r["complete"] for r in th),
@@ -108,7 +108,8 @@ def main(args) -> int:
     kmap = th["kelvin_map"]
     print(f"  camera     {th['profile']} profile, " + ("radiometric" if th["radiometric"] else
           "NOT radiometric: " + (f"kelvin = counts x {kmap['gain_k']:g} + {kmap['offset_k']:g} (stated by the user)"
-                                 if kmap else "counts only, no temperatures")))
+                                 if kmap else "counts only, no temperatures"))
+          + (f", PTP {th['ptp']['status']}" if (th.get("ptp") or {}).get("enabled") else ""))
     print(f"  rgb        {rgb['frames']} frames in {rgb['files']} files ({rgb['dropped']} dropped), {rgb['fps']:.2f} fps")
     s = info["sync"]
     res = info["sync_residual_ms"]

@@ -72,10 +72,12 @@ class ClockFit:
         return self.rate * (np.asarray(device_s, float) - self.device0) + self.offset
 
 
-def fit_clock(device_s: np.ndarray, host_s: np.ndarray, bins: int = 24) -> ClockFit:
+def fit_clock(device_s: np.ndarray, host_s: np.ndarray, bins: int = 24, fixed_rate: bool = False) -> ClockFit:
     """Line through the lowest-latency points: split the (N,) samples into `bins` spans of
     device time, keep the sample with the smallest latency of each, fit through those.
-    (Receive latency only ever adds, so the minima trace the clock relation.)"""
+    (Receive latency only ever adds, so the minima trace the clock relation.)
+    fixed_rate: the device clock runs at true rate (a PTP slave): only the offset is fitted, as
+    the median of those minima, so arrival jitter cannot tilt the line."""
     device_s, host_s = np.asarray(device_s, float), np.asarray(host_s, float)
     d0 = float(device_s[0])
     x = device_s - d0
@@ -85,7 +87,9 @@ def fit_clock(device_s: np.ndarray, host_s: np.ndarray, bins: int = 24) -> Clock
     edges = np.linspace(x.min(), x.max() + 1e-9, min(bins, len(x) // 3 + 1) + 1)
     idx = [int(np.flatnonzero(sel)[np.argmin(lat[sel])])
            for a, b in zip(edges[:-1], edges[1:]) if (sel := (x >= a) & (x < b)).any()]
-    if len(idx) >= 2:
+    if fixed_rate:
+        rate, off = 1.0, float(np.median(lat[idx]))
+    elif len(idx) >= 2:
         rate, off = np.polyfit(x[idx], host_s[idx], 1)
     else:
         rate, off = 1.0, float(lat.min())
@@ -446,14 +450,15 @@ def thermal_gaps(times: np.ndarray, dropped_before: np.ndarray) -> list[dict]:
 
 
 def synchronise(thermal: list[dict], rgb: list[dict], events: list[dict], tick_hz: float,
-                host_epoch: dict) -> SyncResult:
-    """Sync a session's records (as `rig.session.Session` holds them)."""
+                host_epoch: dict, ptp_slave: bool = False) -> SyncResult:
+    """Sync a session's records (as `rig.session.Session` holds them). ptp_slave: the thermal
+    camera's clock followed a PTP grandmaster (session.json thermal.ptp.status "Slave")."""
     th = [r for r in thermal if r.get("device_ts")]
     clock = None
     th_t = np.zeros(0)
     if len(th) >= 2:
         clock = fit_clock(np.array([r["device_ts"] for r in th], float) / tick_hz,
-                          np.array([r["host_ns"] for r in th], float) / 1e9)
+                          np.array([r["host_ns"] for r in th], float) / 1e9, fixed_rate=ptp_slave)
         th_t = clock(np.array([r["device_ts"] for r in th], float) / tick_hz)
     gaps = thermal_gaps(th_t, np.array([r.get("dropped_before", 0) for r in th]))
     files: dict[str, dict] = {}
@@ -519,4 +524,10 @@ def synchronise_session(session) -> SyncResult:
         events = [{**e, "host_s": rate * e["box_us"] / 1e6 + offset}
                   if e.get("event") == "marker" and "box_us" in e else e for e in events]
     tick_hz = session.meta.get("thermal", {}).get("tick_hz", 1e9)
-    return synchronise(session.thermal, session.rgb, events, tick_hz, session.meta["host_clock"])
+    return synchronise(session.thermal, session.rgb, events, tick_hz, session.meta["host_clock"],
+                       ptp_slave=ptp_slave(session.meta))
+
+
+def ptp_slave(meta: dict) -> bool:
+    """session.json says the thermal camera's clock followed a PTP grandmaster."""
+    return (meta.get("thermal", {}).get("ptp") or {}).get("status") == "Slave"

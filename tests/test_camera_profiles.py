@@ -96,3 +96,22 @@ def test_kelvin_map_from_a_flag_or_a_file(tmp_path):
     f.write_text("{}")
     with pytest.raises(ValueError, match="map.json"):
         KelvinMap.parse(str(f))
+
+
+def test_ptp_is_enabled_where_offered_and_sync_fits_only_the_offset(tmp_path):
+    """IEEE 1588: `rig capture` enables PtpEnable, waits for the port to settle and records it;
+    a slave's clock runs at the grandmaster's rate, so sync keeps rate 1 and fits the offset only.
+    The fake's free-running clock is 300 ppm fast, drift-free once a slave."""
+    from rig.sync import synchronise_session
+    out = {}
+    for ptp in ("slave", None):
+        out[ptp] = tmp_path / f"s-{ptp}"
+        with FakeGigECamera(FakeConfig(width=W, height=H, source=lambda t: KELVIN, ptp=ptp,
+                                       clock_drift_ppm=300.0)) as cam:
+            assert rig_main(["capture", "--camera", cam.url, "--duration", "1.5", "--out", str(out[ptp]),
+                             "--quiet"]) == 0
+    slave, plain = open_session(out["slave"]), open_session(out[None])
+    assert slave.meta["thermal"]["ptp"] == {"enabled": True, "status": "Slave", "feature": "PtpEnable"}
+    assert plain.meta["thermal"]["ptp"]["enabled"] is False
+    assert synchronise_session(slave).thermal_clock["rate"] == 1.0
+    assert synchronise_session(plain).thermal_clock["rate"] != 1.0            # fitted, as before

@@ -58,6 +58,9 @@ def register(sub) -> None:
     p.add_argument("--kelvin-map", metavar="GAIN,OFFSET|FILE.json",
                    help="generic profile: kelvin = counts x GAIN + OFFSET (a non-radiometric camera's own "
                         "calibration); without it a generic camera records counts only")
+    p.add_argument("--no-ptp", action="store_true",
+                   help="leave IEEE 1588 off (by default it is enabled where the camera offers it; a PTP "
+                        "slave's timestamps run at the grandmaster's rate and sync only fits their offset)")
     p.add_argument("--fps", type=positive_float, help="thermal frame rate (default: FLIR 30 Hz, others as set)")
     p.add_argument("--packet-size", type=packet_size, default=0, metavar="auto|BYTES",
                    help="GVSP packet size (SCPS) incl. IP/UDP/GVSP headers; auto: the largest test packet "
@@ -89,7 +92,8 @@ def main(args) -> int:
                         packet_size=args.packet_size, settle_s=args.settle, seed=args.seed,
                         sim_lamp=not args.no_sim_lamp, sim_scene=args.sim_scene, sim_variant=args.sim_variant,
                         sim_keyframe_hz=args.sim_keyframes, sim_render_scale=args.sim_render_scale,
-                        progress=not args.quiet, profile=args.profile, frame_rate=args.fps)
+                        progress=not args.quiet, profile=args.profile, frame_rate=args.fps,
+                        ptp=not args.no_ptp)
     handle = None
     try:
         cfg.kelvin_map = KelvinMap.parse(args.kelvin_map) if args.kelvin_map else None

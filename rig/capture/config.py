@@ -17,6 +17,7 @@ class CaptureConfig:
     profile: str = "auto"                   # camera profile (rig/drivers/profiles.py)
     kelvin_map: object = None               # generic profile: KelvinMap from --kelvin-map
     frame_rate: float | None = None         # thermal frame rate (None: FLIR 30 Hz, else the camera's)
+    ptp: bool = True                        # enable IEEE 1588 on the camera where it offers it
     packet_size: int = 0                    # GVSP packet size; 0: negotiated with test packets
     marker_period_s: float = 1.0            # sync-box lamp pulse period (more switches, finer sync)
     marker_on_s: float = 0.5

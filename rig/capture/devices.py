@@ -77,19 +77,20 @@ def open_devices(cfg: CaptureConfig, out: Path) -> Devices:
     if cfg.camera:
         dev.camera = open_thermal_camera(cfg.camera, cfg.profile, cfg.ir_format, cfg.kelvin_map, cfg.frame_rate)
         cam = dev.camera.camera
-        if cfg.packet_size == 0:            # now, so session.json says what the stream will use
-            try:
+        try:
+            if cfg.packet_size == 0:        # now, so session.json says what the stream will use
                 cam.negotiate_packet_size()
-            except Exception:
-                dev.camera.close()
-                raise
+            ptp = dev.camera.enable_ptp() if cfg.ptp else {"enabled": False, "why": "--no-ptp"}
+        except Exception:
+            dev.camera.close()
+            raise
         kmap = getattr(dev.camera, "kelvin_map", None)
         meta["thermal"] = {"source": cfg.camera, "tick_hz": cam.tick_hz,
                            "device": asdict(cam.info) if cam.info else None,
                            "profile": dev.camera.profile, "radiometric": dev.camera.profile != "generic",
                            "kelvin_map": kmap.as_dict() if kmap else None, "frame_rate": dev.camera.frame_rate,
                            "packet_size": cfg.packet_size or cam.packet_size.size,
-                           "packet_size_tested": bool(cam.packet_size and cam.packet_size.tested)}
+                           "packet_size_tested": bool(cam.packet_size and cam.packet_size.tested), "ptp": ptp}
     else:
         from rig.simulated import Lamp, SimClock, SimThermalCamera, default_scene
         dev.lamp = Lamp() if cfg.sim_lamp and "syncbox" in dev.sim_parts else None

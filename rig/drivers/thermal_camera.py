@@ -92,6 +92,27 @@ class ThermalCamera:
     def next_frame(self, timeout: float | None = None) -> Frame:
         return self.tag(self.camera.stream.get(timeout=timeout))
 
+    def enable_ptp(self, wait_s: float = 5.0, poll_s: float = 0.1) -> dict:
+        """IEEE 1588 (PTP) where the camera offers it: SFNC `PtpEnable` (GigE Vision 1.2:
+        `GevIEEE1588`) set, then `PtpStatus` (`GevIEEE1588Status`) read until the port settles
+        (Slave: its clock follows the network's grandmaster, so frame timestamps run at the
+        grandmaster's rate; Master: no other clock answered, the camera's own crystal rules).
+        -> {"enabled", "status", "feature"} or {"enabled": False, "why"} for session.json."""
+        f = self.features
+        names = next(((en, st) for en, st in (("PtpEnable", "PtpStatus"), ("GevIEEE1588", "GevIEEE1588Status"))
+                      if f.has(en)), None)
+        if names is None:
+            return {"enabled": False, "why": "the camera has no PtpEnable or GevIEEE1588 feature"}
+        enable, status = names
+        f.set(enable, True)
+        deadline, state = time.monotonic() + wait_s, None
+        while f.has(status):
+            state = str(f.get(status))
+            if state in ("Slave", "Master") or time.monotonic() > deadline:
+                break
+            time.sleep(poll_s)
+        return {"enabled": True, "status": state, "feature": enable}
+
     def log_event(self, event: dict, host_ns: int | None = None) -> None:
         self.events.append({**event, "host_ns": time.monotonic_ns() if host_ns is None else host_ns})
 

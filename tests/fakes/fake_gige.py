@@ -49,6 +49,21 @@ OBJECT_REG = {name: DEV + 0x100 + 4 * i for i, name in enumerate(flir.OBJECT_FEA
 CAL_REG = {name: DEV + 0x200 + 4 * i
            for i, name in enumerate(("R", "B", "F", "X", "alpha1", "alpha2", "beta1", "beta2", "J1", "J0"))}
 REG["TemperatureLinearResolution"] = DEV + 0x2C   # the "ax5" variant's (TemperatureLinearMode reuses IRFormat's)
+REG["PtpEnable"], REG["PtpStatus"] = DEV + 0x30, DEV + 0x34     # with FakeConfig(ptp=...)
+PTP_STATUS = {"Disabled": 0, "Listening": 1, "Master": 2, "Slave": 3}
+PTP_XML = f"""  <IntReg Name="PtpEnableReg">
+    <Address>{DEV + 0x30:#x}</Address><Length>4</Length><AccessMode>RW</AccessMode>
+    <pPort>Device</pPort><Sign>Unsigned</Sign><Endianess>BigEndian</Endianess>
+  </IntReg>
+  <Boolean Name="PtpEnable"><pValue>PtpEnableReg</pValue><OnValue>1</OnValue><OffValue>0</OffValue></Boolean>
+  <IntReg Name="PtpStatusReg">
+    <Address>{DEV + 0x34:#x}</Address><Length>4</Length><AccessMode>RO</AccessMode>
+    <pPort>Device</pPort><Cachable>NoCache</Cachable><Sign>Unsigned</Sign><Endianess>BigEndian</Endianess>
+  </IntReg>
+  <Enumeration Name="PtpStatus">
+""" + "".join(f'    <EnumEntry Name="{k}"><Value>{v}</Value></EnumEntry>\n' for k, v in PTP_STATUS.items()) + """    <pValue>PtpStatusReg</pValue>
+  </Enumeration>
+"""
 IR_FORMAT_VALUES = {"Radiometric": 0, "TemperatureLinear100mK": 1, "TemperatureLinear10mK": 2}
 # The camera families the profiles tell apart (rig/drivers/profiles.py), as this fake's XML variants:
 #   a700     IRFormat (the XML file as it is)
@@ -85,9 +100,12 @@ TLINEAR_XML = f"""  <Enumeration Name="TemperatureLinearMode">
 """
 
 
-def variant_xml(variant: str) -> bytes:
-    """The GenICam XML of a camera family (see VARIANTS): the A700 file with features renamed or removed."""
+def variant_xml(variant: str, ptp: bool = False) -> bytes:
+    """The GenICam XML of a camera family (see VARIANTS): the A700 file with features renamed or
+    removed; ptp: with the SFNC's PtpEnable and PtpStatus."""
     xml = XML_PATH.read_text()
+    if ptp:
+        xml = xml.replace("</RegisterDescription>", PTP_XML + "</RegisterDescription>")
     assert IRFORMAT_XML in xml and variant in VARIANTS
     if variant == "ax5":
         xml = xml.replace(IRFORMAT_XML, TLINEAR_XML).replace('ModelName="A700"', 'ModelName="A65"')
@@ -99,7 +117,7 @@ def variant_xml(variant: str) -> bytes:
         xml = xml.replace('ModelName="A700" VendorName="FLIR"', 'ModelName="GV-16" VendorName="Generic Vision"')
     return xml.encode()
 IR_FORMAT_NAMES = {v: k for k, v in IR_FORMAT_VALUES.items()}
-READ_ONLY = {REG["SensorWidth"], REG["SensorHeight"], *CAL_REG.values()}
+READ_ONLY = {REG["SensorWidth"], REG["SensorHeight"], REG["PtpStatus"], *CAL_REG.values()}
 
 
 def synthetic_scene(width: int = 640, height: int = 480) -> Callable[[float], np.ndarray]:
@@ -155,6 +173,9 @@ class FakeConfig:
     path_mtu: int = 1500               # test packets (SCPS fire_test_packet) above this never arrive
     max_packet_size: int = 9000        # sizes the camera can send: above, no test packet (GigE Vision)
     test_packets: bool = True          # answer SCPS fire_test_packet at all
+    ptp: str | None = None             # offer IEEE 1588: the port settles as "Slave" (its clock then runs
+                                       # drift-free, disciplined) or "Master" (nothing to follow), 0.3 s
+                                       # after PtpEnable
 
 
 class FakeGigECamera:
@@ -177,6 +198,7 @@ class FakeGigECamera:
         self.block_id = c.first_block_id
         self.sent: collections.OrderedDict[int, tuple[bytes, bytes]] = collections.OrderedDict()
         self.nuc_until = 0.0
+        self.ptp_enabled_at: float | None = None
         self.stats = collections.Counter()
         self.drop_next_commands = 0         # ignore this many commands (a lost request), then answer
         self.commands: list[tuple[int, int]] = []   # (command, req_id) of every command received
@@ -203,7 +225,7 @@ class FakeGigECamera:
         for off, text in ((0x48, vendor), (0x68, model),
                           (0x88, "1.0"), (0xA8, "tests/fakes/fake_gige.py"), (0xD8, c.serial)):
             m[off:off + len(text)] = text.encode()
-        xml = variant_xml(c.variant)
+        xml = variant_xml(c.variant, ptp=bool(c.ptp))
         if c.zipped_xml:
             buf = io.BytesIO()
             with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
@@ -248,9 +270,16 @@ class FakeGigECamera:
         return struct.unpack_from(">f", self.mem, addr)[0]
 
     def device_ticks(self, t: float | None = None) -> int:
+        """The device clock: offset + elapsed x (1 + drift), but drift-free while a PTP slave."""
         c = self.config
         elapsed = (time.monotonic() if t is None else t) - self._t0
-        return int((c.clock_offset_s + elapsed * (1 + c.clock_drift_ppm * 1e-6)) * c.tick_hz)
+        drift = 0.0 if self.ptp_state() == "Slave" else c.clock_drift_ppm * 1e-6
+        return int((c.clock_offset_s + elapsed * (1 + drift)) * c.tick_hz)
+
+    def ptp_state(self) -> str:
+        if not self.config.ptp or self.ptp_enabled_at is None:
+            return "Disabled"
+        return self.config.ptp.capitalize() if time.monotonic() - self.ptp_enabled_at > 0.3 else "Listening"
 
     # -- lifecycle ---------------------------------------------------------------------------
     def start(self) -> FakeGigECamera:
@@ -320,6 +349,8 @@ class FakeGigECamera:
         if cmd.command == Command.PACKETRESEND:
             self._resend(cmd)
             return None
+        if cmd.command in (Command.READREG, Command.READMEM):
+            self._set(REG["PtpStatus"], PTP_STATUS[self.ptp_state()])     # a live status register
         if cmd.command == Command.READREG:
             n = len(cmd.payload) // 4
             addrs = struct.unpack(f">{n}I", cmd.payload[:4 * n])
@@ -369,6 +400,8 @@ class FakeGigECamera:
         elif addr == Reg.SCPS0 and value & 0x80000000:       # fire_test_packet (bit 0, MSB-first)
             self._test_packet(value & 0xFFFF)
             value &= 0x7FFFFFFF
+        elif addr == REG["PtpEnable"]:
+            self.ptp_enabled_at = time.monotonic() if value else None
         elif addr == REG["AcquisitionCommand"]:
             self._acquisition(bool(value))
             return 0
