@@ -10,6 +10,7 @@ COMMANDS = [
     "rig.devices",
     "rig.info",
     "rig.calibrate",
+    "rig.importing",
 ]
 
 

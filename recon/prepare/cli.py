@@ -1,4 +1,6 @@
-"""`recon prepare SESSION OUT`: a rig session -> a prepared dataset with recovered poses."""
+"""`recon prepare SESSION OUT`: a rig session -> a prepared dataset with recovered poses; or
+`recon prepare RGBT_DIR OUT`: an RGBT-Scenes folder (rgb/, thermal/, sparse/0/ COLMAP model) -> a
+prepared dataset with the model's poses (docs/import.md)."""
 from __future__ import annotations
 
 import argparse
@@ -10,7 +12,7 @@ from pathlib import Path
 from recon.prepare.frames import PrepareError
 from recon.prepare.pipeline import REPORT_FILE, PrepareOptions, prepare_session
 from recon.prepare.report import Report
-from rig.cli_format import positive_int
+from rig.cli_format import positive_float, positive_int
 
 EPILOG = """\
 examples:
@@ -19,6 +21,8 @@ examples:
   recon prepare sessions/s1 data/s1 --calibration rigs/rig_calibration.json --frames 120
   recon prepare sessions/s1 data/s1 --scale 0.35 --downscale 2   # metres per SfM unit given
   recon run data/s1 --out runs/s1
+  recon prepare scenes/building data/building --thermal-aligned --non-radiometric   # RGBT-Scenes layout
+  recon prepare scenes/lab data/lab --thermal-scale 0.01 --times lab_times.csv      # 16-bit, timed
 
 Calibration: --calibration, else SESSION/rig_calibration.json, else the session folder's parent
 rig_calibration.json (`rig calibrate` writes it), else, for simulated sessions only, the
@@ -27,7 +31,15 @@ simulator's true calibration. Metric scale: --scale, else the calibration checke
 path; when none applies the command refuses. Simulator fallbacks are noted in the report.
 Writes OUT/transforms.json, rgb/, thermal/, points3d.ply and prepare_report.json (also on
 failure: status, error and what was measured). Exit status 1 = refused, with advice; 2 = bad
-arguments.
+arguments or malformed input (one line naming the file).
+
+RGBT-Scenes folder (rgb/ + thermal/ + sparse/0 or sparse/ with cameras, images, points3D .bin or
+.txt): no SfM, the model's poses and intrinsics are used. Thermal poses: the model's where it
+registers thermal images, else --thermal-aligned (thermal registered to the RGB view) or
+--calibration + --scale (metres per model unit); else it refuses. Splits from rgb/train and
+rgb/test when present, else --test-every. Times: --times CSV, else static (all 0). 8-bit or
+colour-mapped thermal is refused unless --non-radiometric. --downscale applies; --frames,
+--matching, --mask and the SfM checks apply to sessions only.
 """
 
 
@@ -46,7 +58,8 @@ def register(sub) -> None:
     p = sub.add_parser("prepare", help="rig session -> prepared dataset (sync, SfM poses, thermal poses)",
                        description=__doc__, epilog=EPILOG,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("session", type=Path, metavar="SESSION", help="session folder written by `rig capture`")
+    p.add_argument("session", type=Path, metavar="SESSION",
+                   help="session folder written by `rig capture` / `rig import`, or an RGBT-Scenes folder")
     p.add_argument("out", type=Path, metavar="OUT", help="new (or empty) dataset folder")
     p.add_argument("--calibration", type=Path, help="rig_calibration.json (default: found beside the session)")
     p.add_argument("--frames", type=positive_int, default=d.frames,
@@ -73,6 +86,15 @@ def register(sub) -> None:
     p.add_argument("--threads", type=positive_int, default=d.threads, help=f"pycolmap threads (default: {d.threads})")
     p.add_argument("--keep-work", action="store_true", help="keep OUT/.work (SfM images, database, model)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
+    g = p.add_argument_group("RGBT-Scenes folders")
+    g.add_argument("--thermal-aligned", action="store_true",
+                   help="thermal frames are registered to the RGB view of the same name (same pose)")
+    g.add_argument("--thermal-scale", type=positive_float, metavar="K",
+                   help="kelvin per count of 16-bit thermal frames (default: 0.01 or 0.1 by the median)")
+    g.add_argument("--times", type=Path, metavar="CSV",
+                   help="file,timestamp rows giving each image's time (default: static, time 0)")
+    g.add_argument("--non-radiometric", action="store_true",
+                   help="accept 8-bit (colour-mapped) thermal as grey levels, not temperatures")
     p.set_defaults(func=run)
 
 
@@ -81,7 +103,8 @@ def run(args) -> int:
                    downscale=args.downscale, matching=args.matching, mask_box=args.mask,
                    min_registered=args.min_registered, max_reprojection_px=args.max_reprojection,
                    max_jitter_deg=args.max_jitter, refine_intrinsics=args.refine_intrinsics,
-                   threads=args.threads, keep_work=args.keep_work)
+                   threads=args.threads, keep_work=args.keep_work, thermal_aligned=args.thermal_aligned,
+                   thermal_scale=args.thermal_scale, times=args.times, non_radiometric=args.non_radiometric)
     try:
         PrepareOptions(**options)
     except ValueError as exc:

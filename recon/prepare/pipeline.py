@@ -22,6 +22,7 @@ from recon.prepare.frames import PrepareError, select_frames, session_timeline
 from recon.prepare.poses import interpolate_pose
 from recon.prepare.recover import LOW_LIGHT, recover_poses
 from recon.prepare.report import Report
+from recon.prepare.rgbt import is_rgbt_folder, prepare_rgbt
 from recon.prepare.scale import DEPTH_RANGE_M, median_depth_units, metric_scale
 from recon.prepare.writing import THERMAL_SCALE_K, Step, dataset_frames, thermal_range_k
 from recon.sfm import SfmError
@@ -48,6 +49,13 @@ class PrepareOptions:
     keep_work: bool = False              # keep OUT/.work (SfM images, database, model)
     threads: int = 2
     seed: int = 0
+    # RGBT-Scenes folders only (rgbt.py): thermal kelvin per count (None: 10/100 mK by the median),
+    # a file,timestamp CSV (None: static, time 0), thermal frames registered to the RGB view, and
+    # 8-bit colour-mapped thermal accepted as grey levels
+    thermal_scale: float | None = None
+    times: Path | None = None
+    thermal_aligned: bool = False
+    non_radiometric: bool = False
 
     def __post_init__(self):
         if self.frames < 3 or self.downscale < 1 or self.test_every < 0:
@@ -56,6 +64,10 @@ class PrepareOptions:
             raise ValueError(f"scale must be positive metres per SfM unit, got {self.scale}")
         if self.calibration is not None:
             self.calibration = Path(self.calibration)
+        if self.thermal_scale is not None and not self.thermal_scale > 0:
+            raise ValueError(f"thermal_scale must be positive kelvin per count, got {self.thermal_scale}")
+        if self.times is not None:
+            self.times = Path(self.times)
 
 
 def lamp_box(session, options: PrepareOptions) -> tuple[float, ...] | None:
@@ -82,12 +94,18 @@ def prepare_session(session_dir: str | Path, out_dir: str | Path, progress=print
     report = Report(str(session_dir), options={k: (str(v) if isinstance(v, Path) else v)
                                                for k, v in asdict(opts).items()})
     try:
-        path = _prepare(Path(session_dir), out, opts, report, say)
+        if is_rgbt_folder(session_dir):
+            path = prepare_rgbt(Path(session_dir), out, opts, report, say)
+        else:
+            path = _prepare(Path(session_dir), out, opts, report, say)
         report.finish("ok")
         return path
     except (PrepareError, SfmError, CalibrationError) as exc:
         report.finish("failed", str(exc))
         raise PrepareError(str(exc)) from exc
+    except (ValueError, OSError) as exc:           # malformed input: the message names the file
+        report.finish("failed", str(exc))
+        raise
     finally:
         report.write(out / REPORT_FILE)
         if not opts.keep_work:
