@@ -13,6 +13,7 @@ COMMANDS = [
     "recon.run",
     "recon.batch.cli",
     "recon.render",
+    "recon.view",
     "recon.demo",
 ]
 

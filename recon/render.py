@@ -28,16 +28,18 @@ def inference_masks(model: DTGModel) -> dict[str, torch.Tensor] | None:
 
 def render(model: DTGModel, modality: str, t: float, camera: Camera, progress: float = 1.0,
            sh_degree: int | None = None, mask: torch.Tensor | None = None,
-           rgb_geometry: dict[str, torch.Tensor] | None = None, background: torch.Tensor | None = None):
+           rgb_geometry: dict[str, torch.Tensor] | None = None, background: torch.Tensor | None = None,
+           threads: int | None = None):
     """-> (image (H, W, C) over the background, rasterizer output, the Gaussians used).
 
-    sh_degree: active SH degree (None: all the model has); background (C,): None = the learned one."""
+    sh_degree: active SH degree (None: all the model has); background (C,): None = the learned one;
+    threads: rasterizer threads (None: torch's)."""
     g = model.render_inputs(modality, t, progress, mask=mask, rgb_geometry=rgb_geometry)
     feats = g["features"]
     degree = int(round(feats.shape[1] ** 0.5)) - 1 if sh_degree is None else sh_degree
     out = rasterization(g["means"], g["quats"], g["log_scales"], g["opacities"],
                         feats[:, : (degree + 1) ** 2], camera.viewmat, camera.fx, camera.fy,
-                        camera.cx, camera.cy, camera.width, camera.height, sh_degree=degree)
+                        camera.cx, camera.cy, camera.width, camera.height, sh_degree=degree, threads=threads)
     bg = model.backgrounds[modality] if background is None else background
     image = out.image + (1 - out.alpha)[..., None] * bg
     return image, out, g
@@ -72,8 +74,12 @@ def camera_from_args(args, facts: dict) -> Camera:
         if getattr(args, key) is not None:
             cam[key] = getattr(args, key)
     if args.pose:
-        text = Path(args.pose).read_text() if Path(args.pose).exists() else args.pose
-        c2w = np.asarray(json.loads(text), dtype=np.float64)
+        literal = args.pose.lstrip().startswith("[")       # a matrix, not a file name (too long for one)
+        try:
+            text = args.pose if literal else Path(args.pose).read_text()
+            c2w = np.asarray(json.loads(text), dtype=np.float64)
+        except ValueError as exc:
+            raise ValueError(f"--pose {args.pose[:60]!r}: not a JSON 4x4 matrix ({exc})") from None
         if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
             raise ValueError(f"--pose: expected a 4x4 camera-to-world matrix (OpenGL axes), got shape {c2w.shape}")
         cam["c2w"] = c2w.tolist()

@@ -34,10 +34,12 @@ from recon.eval.regions import RegionPool
 from recon.eval.renders import encode_render, write_render_pixels
 from recon.export import export_deformation, export_ply, model_bytes
 from recon.prepare import REPORT_FILE, PrepareError, PrepareOptions, prepare_session
+from recon.prepare.rgbt import is_rgbt_folder
 from recon.render import render_frame
 from recon.scene import Scene
 from recon.train.guard import TrainingDiverged
 from recon.train.trainer import Trainer
+from recon.view import LiveRenderService
 from recon import viz
 from server.cli_options import add_serve_arguments, serve_from_args
 from rig.cli_format import positive_float, positive_int
@@ -160,12 +162,17 @@ def scene_facts(scene: Scene, data_dir: Path) -> dict:
 
 
 def input_kind(path: Path) -> str:
+    """dataset (transforms.json), session (session.json) or rgbt (an RGBT-Scenes folder: rgb/,
+    thermal/, sparse/; prepared like a session, see docs/import.md)."""
     if (path / "transforms.json").exists():
         return "dataset"
     if (path / "session.json").exists():
         return "session"
-    raise ValueError(f"{path}: neither a prepared dataset (transforms.json) nor a rig session "
-                     f"(session.json); see FORMATS.md, `recon simulate` or `rig capture`")
+    if is_rgbt_folder(path):
+        return "rgbt"
+    raise ValueError(f"{path}: neither a prepared dataset (transforms.json), a rig session (session.json) "
+                     f"nor an RGBT-Scenes folder (rgb/ thermal/ sparse/); see FORMATS.md, `recon simulate`, "
+                     f"`rig capture` or docs/import.md")
 
 
 def make_trainer(args, scene: Scene, out: Path, overrides: dict) -> Trainer:
@@ -195,10 +202,13 @@ def config_from_args(args, overrides: dict, live: bool = False):
     return cfg
 
 
-def prepare_options(args) -> dict:
-    """The `recon prepare` options of a session run (prepare's defaults where not given)."""
+def prepare_options(args, kind: str = "session") -> dict:
+    """The `recon prepare` options of a session or RGBT-Scenes run (prepare's defaults where not
+    given; a session's 640x480 thermal frames are downscaled 4x by default, an RGBT folder's
+    images are kept at their size)."""
     given = {"calibration": args.calibration, "scale": args.scale, "frames": args.frames}
-    return {"downscale": args.downscale, **{k: v for k, v in given.items() if v is not None}}
+    downscale = args.downscale or (4 if kind == "session" else 1)
+    return {"downscale": downscale, **{k: v for k, v in given.items() if v is not None}}
 
 
 def prepare_refused(session: Path, data_dir: Path, exc: Exception) -> str:
@@ -224,8 +234,11 @@ def run(args: argparse.Namespace) -> int:
                                    "seed": args.seed, "threads": args.threads,
                                    "checkpoint_every": args.checkpoint_every}.items() if v is not None}
     log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
-    handle = serve_from_args(args, run_dir=out, session_dir=inp if kind == "session" else None)
+    live = LiveRenderService() if getattr(args, "serve", False) else None     # the page's viewer panel
+    handle = serve_from_args(args, run_dir=out, session_dir=inp if kind == "session" else None, renderer=live)
     feed = TrainingFeed(LivePublisher(out))
+    if live:
+        feed.on_step = live.chain(feed.on_step)     # hands the viewer a model copy between steps, when asked
     try:
         return train_and_finish(args, inp, out, kind, overrides, feed, log)
     except BaseException:
@@ -248,11 +261,11 @@ def train_and_finish(args, inp: Path, out: Path, kind: str, overrides: dict, fee
             raise ValueError(f"recon run: nothing trained: {exc}.{report}") from None
     else:
         data_dir = inp
-        if kind == "session":
+        if kind in ("session", "rgbt"):
             data_dir = out / "data"
             if not (data_dir / "transforms.json").exists():
                 try:
-                    prepare_session(inp, data_dir, **prepare_options(args))
+                    prepare_session(inp, data_dir, **prepare_options(args, kind))
                 except PrepareError as exc:     # a refusal with advice, not a crash
                     raise ValueError(prepare_refused(inp, data_dir, exc)) from None
         scene = Scene(load_dataset(data_dir))
@@ -286,11 +299,13 @@ def register(sub) -> None:
                "  recon run data/default --method ed3dgs-thermal --out runs/ed-th --iterations 2000\n"
                "  recon run data/default --out runs/dtg --resume      # continue from the last checkpoint\n"
                "  recon run sessions/s1 --out runs/s1                 # a rig session: recon prepare, then train\n"
+               "  recon run scenes/lab --out runs/lab                 # an RGBT-Scenes folder: the same\n"
                "  rig capture --duration 60 --out sessions/live &\n"
                "  recon run sessions/live --follow --out runs/live    # train while it captures")
     p.add_argument("input", metavar="DATASET_OR_SESSION",
-                   help="prepared dataset folder (transforms.json) or rig session (session.json; "
-                        "prepared into OUT/data with `recon prepare` first)")
+                   help="prepared dataset folder (transforms.json), rig session (session.json) or RGBT-Scenes "
+                        "folder (rgb/ thermal/ sparse/); the latter two are prepared into OUT/data with "
+                        "`recon prepare` first")
     p.add_argument("--method", default="dtg", choices=list(METHODS),
                    help="dtg (full) or a baseline/ablation of the paper's Table 3 (default: dtg)")
     p.add_argument("--out", required=True, help="run folder (created)")
@@ -312,8 +327,9 @@ def register(sub) -> None:
     p.add_argument("--follow", action="store_true",
                    help="train while `rig capture` is still writing SESSION; stop --after iterations after it ends")
     p.add_argument("--after", type=int, default=1500, help="with --follow: iterations after capture ends (default 1500)")
-    p.add_argument("--downscale", type=positive_int, default=4,
-                   help="a session's images are prepared at 1/N size (default 4: 640x480 thermal -> 160x120)")
+    p.add_argument("--downscale", type=positive_int,
+                   help="a session's images are prepared at 1/N size (default 4: 640x480 thermal -> 160x120; "
+                        "an RGBT-Scenes folder's: 1)")
     p.add_argument("--calibration", type=Path, help="a session's rig_calibration.json (see `recon prepare`)")
     p.add_argument("--scale", type=float, help="a session's metres per SfM unit (see `recon prepare`)")
     p.add_argument("--frames", type=positive_int,

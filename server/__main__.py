@@ -21,7 +21,8 @@ def parser() -> argparse.ArgumentParser:
                "  python -m server --batch runs/b1      # a batch: the jobs' table, each job's page at /job/N/\n"
                "endpoints: /  /api/status  /api/metrics?max=N  /api/gaussians  /api/renders\n"
                "           /api/capture  /api/sync  /render/{latest,t00..}/{rgb.png,thermal.png,kelvin.npy}\n"
-               "           /api/batch  /job/N/  /job/N/api/...  /job/N/render/...   (job N of batch.json: its run)")
+               "           /api/batch  /job/N/  /job/N/api/...  /job/N/render/...   (job N of batch.json: its run)\n"
+               "the viewer (/view: any pose, any time) needs the model loaded: `recon view RUN` serves it")
     p.add_argument("--run", metavar="RUN", help="a `recon run` output folder (reads RUN/live/)")
     p.add_argument("--session", metavar="SESSION", help="a `rig capture` session folder")
     p.add_argument("--batch", metavar="RUNS", help="a `recon batch` folder (reads RUNS/batch.json and each job's run)")

@@ -12,6 +12,11 @@ not exist yet: endpoints answer 503 with {} until something is published.
 
 serves /api/batch (RUNS/batch.json) and, per job, the run page at /job/N/ (N = index into
 batch.json's jobs; its API and render URLs read RUNS/<jobs[N].run_dir>/, which must lie inside RUNS).
+
+    handle = serve("127.0.0.1", 8765, run_dir="runs/s1", renderer=RenderService.from_run("runs/s1"))
+
+adds the viewer (any pose, any time) at /view and its API at /api/view/... (server/viewer.py); the
+status page then shows it as a panel.
 """
 from __future__ import annotations
 
@@ -26,6 +31,7 @@ from server.batch_reader import BatchReader, JobError
 from server.handler import StatusHandler
 from server.run_reader import RunReader, is_render_name
 from server.session_monitor import SessionMonitor
+from server.viewer import ViewerEndpoints
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
@@ -39,9 +45,13 @@ class View:
                  batch: BatchReader | None = None, job: dict | None = None):
         self.run, self.session, self.batch, self.job = run, session, batch, job
 
+    viewer = False          # the root view of a server with a renderer: the page shows the viewer panel
+
     def config(self) -> dict:
         run, ses = self.run, self.session
         out = {"run": str(run.run_dir) if run else None, "session": str(ses.path) if ses else None}
+        if self.viewer:
+            out["viewer"] = True
         if self.batch:
             out["batch"] = str(self.batch.runs_dir)
         if self.job:
@@ -73,11 +83,15 @@ class App:
     """What the handler serves: the page, and the views it reads (the root one, one per batch job)."""
 
     def __init__(self, run_dir: Path | None, session_dir: Path | None, session_poll_s: float,
-                 batch_dir: Path | None = None):
+                 batch_dir: Path | None = None, renderer=None):
         self.page = resources.files("server").joinpath("page.html").read_bytes()
+        self.viewer = ViewerEndpoints(renderer) if renderer is not None else None
+        if self.viewer:
+            self.viewer.page = resources.files("server").joinpath("viewer.html").read_bytes()
         self.batch = BatchReader(batch_dir) if batch_dir else None
         self.root = View(RunReader(run_dir) if run_dir else None,
                          SessionMonitor(session_dir, session_poll_s) if session_dir else None, self.batch)
+        self.root.viewer = self.viewer is not None
 
     def job_view(self, index: int) -> View | None:
         """The view of /job/INDEX/: that job's run folder. None while batch.json does not exist;
@@ -99,6 +113,8 @@ class App:
     def close(self) -> None:
         if self.root.session:
             self.root.session.stop()
+        if self.viewer:
+            self.viewer.close()
 
 
 class StatusServer(ThreadingHTTPServer):
@@ -170,6 +186,12 @@ class ServerHandle:
     def counts(self) -> dict:
         return dict(self._httpd.counts)
 
+    @property
+    def viewer_counts(self) -> dict | None:
+        """{"submitted", "rendered", "superseded"} of the viewer's renders; None without a renderer."""
+        v = self._httpd.app.viewer
+        return dict(v.coalescer.counts) if v else None
+
     def stop(self) -> None:
         """Stop accepting, close open connections and the session monitor; idempotent."""
         if self._thread.is_alive():
@@ -188,12 +210,14 @@ class ServerHandle:
 
 def serve(host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, run_dir: str | Path | None = None,
           session_dir: str | Path | None = None, verbose: bool = False,
-          session_poll_s: float = 1.0, batch_dir: str | Path | None = None) -> ServerHandle:
+          session_poll_s: float = 1.0, batch_dir: str | Path | None = None, renderer=None) -> ServerHandle:
     """Start the status server in a daemon thread and return its handle (port 0: any free port).
     batch_dir: a `recon batch` folder (RUNS/): /api/batch and one run page per job at /job/N/.
+    renderer: renders at any pose and time (recon.view.RenderService, or the same three methods,
+    see server/viewer.py): the viewer at /view and a viewer panel on the status page.
     Raises OSError if the address cannot be bound (e.g. the port is taken)."""
     app = App(Path(run_dir) if run_dir else None, Path(session_dir) if session_dir else None, session_poll_s,
-              Path(batch_dir) if batch_dir else None)
+              Path(batch_dir) if batch_dir else None, renderer)
     try:
         httpd = StatusServer((host, port), app, verbose)
     except OSError:

@@ -24,16 +24,19 @@ def add_serve_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port of the page (default: {DEFAULT_PORT})")
 
 
-def serve_from_args(args: argparse.Namespace, run_dir=None, session_dir=None, batch_dir=None) -> ServerHandle | None:
+def serve_from_args(args: argparse.Namespace, run_dir=None, session_dir=None, batch_dir=None,
+                    renderer=None) -> ServerHandle | None:
     """Start the page if --serve was given and print its URL; exits with a clear message if the
     address cannot be bound. batch_dir: a `recon batch` folder (batch panel, one page per job).
+    renderer: the viewer's renderer (recon.view; `recon run` passes the training model's).
     -> the handle (stop it when done) or None."""
     if not getattr(args, "serve", False):
         return None
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port must be in 0..65535, got {args.port}")
     try:
-        handle = serve(args.host, args.port, run_dir=run_dir, session_dir=session_dir, batch_dir=batch_dir)
+        handle = serve(args.host, args.port, run_dir=run_dir, session_dir=session_dir, batch_dir=batch_dir,
+                       renderer=renderer)
     except OSError as exc:
         raise ValueError(f"--serve: cannot listen on {args.host}:{args.port}: {exc.strerror or exc}") from None
     print(f"status page: {handle.url}", flush=True)

@@ -4,7 +4,9 @@ GET and HEAD only. Request line <= 2 KiB (else 414), header block <= 16 KiB (els
 request body (413). Every path is matched against a fixed route table after percent-decoding;
 paths holding "..", a backslash or NUL are refused with 400, unknown paths get 404, so no file
 outside the whitelisted ones can be named. /job/N/... (a batch job's page) are the same routes
-for job N's run folder, N being an index into batch.json's jobs, never a path. Replies carry
+for job N's run folder, N being an index into batch.json's jobs, never a path. /view and
+/api/view/{info,render,series} exist at the root only, with a renderer attached (server/viewer.py:
+query values parsed and bounded there, renders coalesced per client). Replies carry
 Content-Length, Cache-Control: no-store and nosniff; a client that goes away mid-reply is
 counted, not raised.
 """
@@ -14,12 +16,14 @@ import http.client
 import json
 import re
 import socket
+import sys
 import time
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler
 from urllib.parse import parse_qs, unquote, urlsplit
 
 from server.batch_reader import JobError
+from server.viewer import Unavailable, ViewerError
 
 MAX_REQUEST_LINE = 2048
 MAX_HEADER_BYTES = 16 * 1024
@@ -28,7 +32,8 @@ MAX_POINTS = 5000
 JSON = "application/json"
 # the page is self-contained: nothing may load from anywhere but this server
 PAGE_CSP = ("default-src 'none'; img-src 'self' data:; style-src 'unsafe-inline'; "
-            "script-src 'unsafe-inline'; connect-src 'self'; base-uri 'none'; form-action 'none'")
+            "script-src 'unsafe-inline'; connect-src 'self'; frame-src 'self'; base-uri 'none'; form-action 'none'")
+VIEWER_CSP = PAGE_CSP.replace("img-src 'self' data:", "img-src 'self' data: blob:")
 RENDER_PATH = re.compile(r"/render/([^/]+)/([^/]+)")
 JOB_PATH = re.compile(r"/job/(0|[1-9][0-9]{0,5})(/.*)?", re.S)    # a batch job's page: index, rest
 DISCONNECTS = (BrokenPipeError, ConnectionResetError, ConnectionAbortedError, TimeoutError)
@@ -218,6 +223,9 @@ class StatusHandler(BaseHTTPRequestHandler):
             self.reply(HTTPStatus.OK, self.server.app.page, "text/html; charset=utf-8",
                        {"Content-Security-Policy": PAGE_CSP})
             return
+        if view is self.server.app.root and (path == "/view" or path.startswith("/api/view/")):
+            self.route_viewer(path, query)
+            return
         if path.startswith("/api/"):
             value = view.api(path[5:], int_param(query, "max", DEFAULT_POINTS, 2, MAX_POINTS))
             if value is NotImplemented:
@@ -235,3 +243,29 @@ class StatusHandler(BaseHTTPRequestHandler):
             self.reply(HTTPStatus.SERVICE_UNAVAILABLE, b"", "text/plain", {"Retry-After": "1"})
         else:
             self.reply(HTTPStatus.OK, *found)
+
+    def route_viewer(self, path: str, query: dict) -> None:
+        """/view and /api/view/{info,render,series}: only with a renderer attached (else 404)."""
+        viewer = self.server.app.viewer
+        if viewer is None:
+            self.reply(HTTPStatus.NOT_FOUND, {"error": "no renderer attached (recon view RUN serves one)"})
+            return
+        try:
+            if path == "/view":
+                self.reply(HTTPStatus.OK, viewer.page, "text/html; charset=utf-8", {"Content-Security-Policy": VIEWER_CSP})
+            elif path == "/api/view/info":
+                self.reply(HTTPStatus.OK, viewer.info())
+            elif path == "/api/view/render":
+                self.reply(HTTPStatus.OK, viewer.render(query), "application/octet-stream")
+            elif path == "/api/view/series":
+                self.reply(HTTPStatus.OK, viewer.series(query))
+            else:
+                self.reply(HTTPStatus.NOT_FOUND, {"error": f"no endpoint {path[:80]}"})
+        except ViewerError as exc:
+            self.reply(HTTPStatus.BAD_REQUEST, {"error": str(exc)})
+        except (Unavailable, TimeoutError) as exc:
+            self.reply(HTTPStatus.SERVICE_UNAVAILABLE, {"error": str(exc)}, headers={"Retry-After": "1"})
+        except Exception as exc:          # the renderer failed: say so in one line, keep serving
+            self.server.count("errors")
+            print(f"server: viewer render failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+            self.reply(HTTPStatus.INTERNAL_SERVER_ERROR, {"error": f"render failed: {type(exc).__name__}: {exc}"})

@@ -99,6 +99,12 @@ def test_rgbt_folder_prepares_and_trains(sim, tmp_path, capsys):
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())["metrics"]
     for m in ("rgb", "thermal"):
         assert np.isfinite(metrics[m]["psnr"]) and metrics[m]["psnr"] > PSNR_FLOOR_DB[m], metrics
+    # `recon run` takes the folder itself: prepared into OUT/data (at full size), then trained
+    assert recon_main(["run", str(scene), "--out", str(tmp_path / "direct"), *RUN]) == 0
+    direct = load_dataset(tmp_path / "direct" / "data")
+    assert direct.frames[0].width == ds.frames[0].width
+    assert json.loads((tmp_path / "direct" / "metrics.json").read_text())["metrics"]["thermal"]["psnr"] > \
+        PSNR_FLOOR_DB["thermal"]
 
 
 def test_rgbt_thermal_from_the_calibration_and_with_times(sim, tmp_path):

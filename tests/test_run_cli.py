@@ -76,7 +76,8 @@ def test_render_any_time_and_pose(run, tmp_path):
 
 def test_clear_errors(tmp_path):
     res = recon("run", tmp_path, "--out", tmp_path / "o", check=False)
-    assert res.returncode != 0 and "neither a prepared dataset (transforms.json) nor a rig session" in res.stderr
+    assert res.returncode == 2 and "neither a prepared dataset (transforms.json), a rig session" in res.stderr
+    assert "RGBT-Scenes folder" in res.stderr and len(res.stderr.strip().splitlines()) == 1
     res = recon("render", tmp_path, check=False)
     assert res.returncode != 0 and "missing" in res.stderr
 

@@ -4,9 +4,7 @@ by hand (batch.json as the driver writes it, the running job's RUN/live/ by a re
 import argparse
 import http.client
 import json
-import os
 import re
-import shutil
 import signal
 import subprocess
 import sys
@@ -18,6 +16,7 @@ import pytest
 import server
 from recon.live.publish import LivePublisher, atomic_write
 from server.cli_options import serve_from_args
+from tests.chromium import ARGS, CHROMIUM, playwright
 from tests.test_server_endpoints import get
 
 SECRET = b"top secret: never served"
@@ -216,15 +215,10 @@ def test_cli_serves_a_batch(runs):
 
 
 # ------------------------------------------------------------------ in a browser (skips like test_server_browser.py)
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 
 
 def test_page_shows_the_batch_and_links_each_jobs_run_page(handle):
-    sync_api = pytest.importorskip("playwright.sync_api", reason="the Playwright driver is not installed")
-    if not os.access(CHROMIUM, os.X_OK):
-        pytest.skip(f"no Chromium at {CHROMIUM} (make system-deps installs it)")
+    sync_api = playwright()
     requests, errors = [], []
     with sync_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)

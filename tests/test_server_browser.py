@@ -4,17 +4,15 @@ Skips (never fails) where Chromium or the Playwright driver is missing (`make sy
 Debian's chromium; the `test` extra installs playwright; no browser is downloaded). The screenshot
 is kept as tests/artifacts/status_page.png (or under $THERMAL4D_ARTIFACTS).
 """
-import os
 import re
-import shutil
 import subprocess
 import sys
 import threading
 from pathlib import Path
 
-import pytest
 
 import server
+from tests.chromium import ARGS, ARTIFACTS, CHROMIUM, playwright
 from recon.config import make_config
 from recon.data import load_dataset
 from recon.data.simulate import SimulateConfig, simulate_dataset
@@ -22,14 +20,7 @@ from recon.live.publish import LivePublisher, TrainingFeed
 from recon.scene import Scene
 from recon.train.trainer import Trainer
 
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
-ARTIFACTS = Path(os.environ.get("THERMAL4D_ARTIFACTS", Path(__file__).parent / "artifacts"))
-
-sync_api = pytest.importorskip("playwright.sync_api", reason="the Playwright driver is not installed")
-if not os.access(CHROMIUM, os.X_OK):
-    pytest.skip(f"no Chromium at {CHROMIUM} (make system-deps installs it)", allow_module_level=True)
+sync_api = playwright(module_level=True)
 
 
 def text_int(page, element_id: str) -> int:
