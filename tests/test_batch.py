@@ -1,10 +1,9 @@
-"""`recon batch` on a real two-node Ray cluster on this machine (ray.cluster_utils.Cluster: a head
-and a second node, one CPU each): jobs land on both nodes, a job equals a plain `recon run` with
-the same seed, a worker killed mid-job is retried and finishes from its checkpoint, a job that
-fails on its input is reported while the others finish, and a second batch skips what is done."""
+"""`recon batch` on a real Ray cluster on this machine (ray.cluster_utils.Cluster: a head without
+CPUs and two worker nodes with one CPU each): jobs land on both nodes, a job equals a plain
+`recon run` with the same seed, a node killed mid-job (all its processes) costs only a retry that
+finishes from the job's checkpoint on the other node, a job that fails on its input is reported
+while the others finish, and a second batch skips what is done."""
 import json
-import os
-import signal
 import threading
 import time
 from pathlib import Path
@@ -13,7 +12,7 @@ import pytest
 import torch
 
 from recon.batch.execute import run_argv
-from recon.batch.jobs import Job, expand, parse_seeds
+from recon.batch.jobs import expand, parse_seeds
 from recon.batch.ray_runner import run_batch
 from recon.cli import main as recon_main
 from recon.data.simulate import SimulateConfig, simulate_dataset
@@ -48,7 +47,8 @@ def test_cli_refuses_a_folder_that_is_not_an_input_before_starting_ray(tmp_path,
 
 @pytest.fixture(scope="module")
 def cluster():
-    c = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
+    c = Cluster(initialize_head=True, head_node_args={"num_cpus": 0, "include_dashboard": False})
+    c.add_node(num_cpus=1)          # jobs run on the worker nodes only: either may be killed
     c.add_node(num_cpus=1)
     ray.init(address=c.address, log_to_driver=False)
     c.wait_for_nodes()
@@ -100,8 +100,9 @@ def test_jobs_land_on_both_nodes_and_equal_recon_run(cluster, datasets, tmp_path
     assert [r["state"] for r in again] == ["skipped", "skipped"] and time.perf_counter() - t0 < 5
 
 
-def kill_when_checkpointed(run_dir: Path, killed: list, timeout_s: float = 120) -> None:
-    """SIGKILL the job's worker once it has written a checkpoint (a node dying mid-job)."""
+def kill_node_when_checkpointed(cluster, run_dir: Path, killed: list, timeout_s: float = 120) -> None:
+    """Kill the node running the job (raylet and workers, no grace) once the job has written a
+    checkpoint: a machine of the cluster dying mid-job."""
     end = time.time() + timeout_s
     while time.time() < end:
         try:
@@ -109,24 +110,25 @@ def kill_when_checkpointed(run_dir: Path, killed: list, timeout_s: float = 120) 
         except (OSError, ValueError):
             state = {}
         if state.get("state") == "running" and (run_dir / "checkpoints" / "latest.pt").exists():
-            os.kill(state["pid"], signal.SIGKILL)
-            killed.append(state["pid"])
+            node = next(n for n in cluster.worker_nodes if n.node_id == state["node"])
+            cluster.remove_node(node, allow_graceful=False)
+            killed.append(state["node"])
             return
         time.sleep(0.05)
 
 
-def test_a_killed_worker_resumes_and_a_failed_job_does_not_stop_the_others(cluster, datasets, tmp_path):
+def test_a_dead_node_costs_a_retry_and_a_failed_job_does_not_stop_the_others(cluster, datasets, tmp_path):
     runs = tmp_path / "runs"
     jobs = expand([datasets / "a", datasets / "broken"], ["dtg"], None, threads=1,
                   spec={"iterations": 300, "checkpoint_every": 20})
     killed: list = []
-    watcher = threading.Thread(target=kill_when_checkpointed, args=(runs / "a" / "dtg", killed))
+    watcher = threading.Thread(target=kill_node_when_checkpointed, args=(cluster, runs / "a" / "dtg", killed))
     watcher.start()
     rows = run_batch(jobs, runs, log=lambda _: None, interval_s=0.5)
     watcher.join()
-    assert killed, "the worker was never seen running with a checkpoint"
+    assert killed, "the job was never seen running with a checkpoint"
     good, bad = rows
-    assert good["state"] == "done" and good["attempts"] == 2, good
+    assert good["state"] == "done" and good["attempts"] == 2 and good["node"] != killed[0], good
     state = json.loads((runs / "a" / "dtg" / "job.json").read_text())
     assert state["resumed_from"] and state["resumed_from"] >= 20, state
     assert json.loads((runs / "a" / "dtg" / "metrics.json").read_text())["iterations"] == 300
