@@ -72,7 +72,10 @@ def test_a_blow_up_is_rolled_back_with_lower_learning_rates_and_logged(scene):
     assert event["lr_scale"] == 0.5 and tr.lr_scale == 0.5
     assert any("divergence at iteration" in m and "rolled back to iteration 120" in m for m in messages)
     # it recovered: the scene is where it was, and held-out quality is close to an untouched run
-    assert tr.model.gaussians["means"].detach().abs().max() < 10 * tr.extent
+    # (corrupt() threw every Gaussian 50 extents out; the scene's own points reach ~10 extents from
+    # the origin, so compare with the untouched run, not with a multiple of the extent)
+    reach = lambda t: float(t.model.gaussians["means"].detach().abs().max())  # noqa: E731
+    assert reach(tr) < 2 * reach(clean) < 20 * tr.extent, (reach(tr), reach(clean), tr.extent)
     after, reference = tr.holdout_psnr(), clean.holdout_psnr()
     for m in reference:
         assert after[m] > reference[m] - 2.0, (after, reference)
