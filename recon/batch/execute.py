@@ -11,7 +11,8 @@ from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 from typing import Callable
 
-from recon.batch.jobs import Job, has_checkpoint, read_json, write_json
+from recon.batch.jobs import Job, has_checkpoint, read_json
+from rig.session import write_json_atomic
 
 RESUMED = re.compile(r"resumed at iteration (\d+)")
 
@@ -67,7 +68,7 @@ def execute_job(job: dict, runs: str, work: Callable[[Job, Path, bool], int] = r
     state = {"state": "running", "attempts": int(previous.get("attempts", 0)) + 1, "node": node_id(),
              "pid": os.getpid(), "started_unix": time.time(), "ended_unix": None, "seconds": None,
              "resumed_from": None, "error": None}
-    write_json(run_dir / "job.json", state)
+    write_json_atomic(run_dir / "job.json", state)
     resume = has_checkpoint(run_dir) and not (run_dir / "metrics.json").exists()
     log_path = run_dir / "log.txt"
     t0 = time.perf_counter()
@@ -90,5 +91,5 @@ def execute_job(job: dict, runs: str, work: Callable[[Job, Path, bool], int] = r
                  seconds=round(time.perf_counter() - t0, 2),
                  resumed_from=int(resumed[-1]) if resumed else None,
                  error=None if code == 0 else (message or last_line(log_path) or f"exit code {code}"))
-    write_json(run_dir / "job.json", state)
+    write_json_atomic(run_dir / "job.json", state)
     return {"name": job.name, **state}

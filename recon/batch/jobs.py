@@ -3,8 +3,6 @@ files that say what each one has done (contract: recon/batch/__init__.py)."""
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -59,15 +57,6 @@ def parse_seeds(text: str) -> list[int]:
         except ValueError:
             raise ValueError(f"--seeds {text!r}: expected numbers and ranges such as 0-3,7") from None
     return out
-
-
-def write_json(path: Path, value) -> None:
-    """Replace `path` whole: a reader sees the old or the new file, never a torn one."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w") as f:
-        json.dump(value, f, indent=1)
-    os.replace(tmp, path)
 
 
 def read_json(path: Path) -> dict | None:

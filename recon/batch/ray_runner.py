@@ -11,7 +11,8 @@ from pathlib import Path
 from typing import Callable
 
 from recon.batch.execute import execute_job, run_recon
-from recon.batch.jobs import FORMAT, VERSION, Job, finished, read_json, write_json
+from recon.batch.jobs import FORMAT, VERSION, Job, finished, read_json
+from rig.session import write_json_atomic
 
 COUNTED = ("queued", "running", "done", "failed", "skipped")
 
@@ -77,7 +78,7 @@ def write_batch(runs: Path, jobs: list[Job], states: dict[str, str], results: di
     doc = {"format": FORMAT, "version": VERSION, "state": state, "address": address or "local",
            "nodes": _alive_nodes(), "started_unix": started, "updated_unix": time.time(),
            "counts": counts, "jobs": rows}
-    write_json(runs / "batch.json", doc)
+    write_json_atomic(runs / "batch.json", doc)
     return doc
 
 
