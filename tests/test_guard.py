@@ -12,6 +12,16 @@ from recon.train.trainer import Trainer
 from tests.test_train import small_cfg, tiny
 
 
+@pytest.fixture(scope="module", autouse=True)
+def two_threads():
+    """The rollback runs' numbers depend on the float summation order: pinned to the appliance's 2
+    threads (as tests/test_tracking.py), with bounds from the spread over 1-4 threads."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    yield
+    torch.set_num_threads(before)
+
+
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
     return tiny(tmp_path_factory)
@@ -68,7 +78,9 @@ def test_a_blow_up_is_rolled_back_with_lower_learning_rates_and_logged(scene):
     train_with_corruptions(tr, {121})
     assert len(tr.events) == 1, tr.events
     event = tr.events[0]
-    assert 121 < event["iteration"] <= 121 + 6 and event["rolled_back_to"] == 120
+    # caught once the last `patience` losses are mostly high: 3-9 iterations after the blow-up over
+    # 1-4 threads (some views of the thrown-out model score under 2x the healthy loss)
+    assert 121 < event["iteration"] <= 121 + 2 * 6 and event["rolled_back_to"] == 120
     assert event["lr_scale"] == 0.5 and tr.lr_scale == 0.5
     assert any("divergence at iteration" in m and "rolled back to iteration 120" in m for m in messages)
     # it recovered: the scene is where it was, and held-out quality is close to an untouched run
