@@ -253,6 +253,11 @@ class CurriculumConfig:
     complete_by: float = 0.4          # a short run grows faster: whole by this fraction of it
     edge_weight: float = 0.5          # probability of training on one of the window's new edges
     search: bool = False              # search where each motion basis is at a new step
+    bodies_only: bool = False         # steps inside the growing window train the bodies only
+    bodies_only_hold: bool = False    # bodies_only only until the window first grows
+    # Bodies found after a static warm-up of this many iterations (at most 15 % of a run;
+    # recon/train/discover.py) instead of from the initial points alone. 0: from the points.
+    discover_after: int = 0
     outside: float = 0.0              # probability of a time step outside the window, with a loss
     outside_keep: float = 0.9         # over the best-fitting fraction of its pixels only
 

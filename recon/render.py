@@ -29,12 +29,16 @@ def inference_masks(model: DTGModel) -> dict[str, torch.Tensor] | None:
 def render(model: DTGModel, modality: str, t: float, camera: Camera, progress: float = 1.0,
            sh_degree: int | None = None, mask: torch.Tensor | None = None,
            rgb_geometry: dict[str, torch.Tensor] | None = None, background: torch.Tensor | None = None,
-           threads: int | None = None):
+           threads: int | None = None, frozen: torch.Tensor | None = None):
     """-> (image (H, W, C) over the background, rasterizer output, the Gaussians used).
 
     sh_degree: active SH degree (None: all the model has); background (C,): None = the learned one;
-    threads: rasterizer threads (None: torch's)."""
+    threads: rasterizer threads (None: torch's); frozen (N,) bool: Gaussians this render may not
+    train (their parameters are seen detached)."""
     g = model.render_inputs(modality, t, progress, mask=mask, rgb_geometry=rgb_geometry)
+    if frozen is not None:
+        g = {**g, **{k: torch.where(frozen.view(-1, *[1] * (g[k].dim() - 1)), g[k].detach(), g[k])
+                     for k in ("means", "quats", "log_scales", "opacities", "features")}}
     feats = g["features"]
     degree = int(round(feats.shape[1] ** 0.5)) - 1 if sh_degree is None else sh_degree
     out = rasterization(g["means"], g["quats"], g["log_scales"], g["opacities"],
@@ -51,6 +55,14 @@ def render_frame(model: DTGModel, modality: str, t: float, camera: Camera) -> to
     masks = inference_masks(model)
     image, _, _ = render(model, modality, t, camera, mask=None if masks is None else masks[modality])
     return image
+
+
+@torch.no_grad()
+def render_frame_layers(model: DTGModel, modality: str, t: float, camera: Camera):
+    """Inference render with its geometry: (image (H, W, C), expected depth (H, W), alpha (H, W))."""
+    masks = inference_masks(model)
+    image, out, _ = render(model, modality, t, camera, mask=None if masks is None else masks[modality])
+    return image, out.depth, out.alpha
 
 
 # ---------------------------------------------------------------------- `recon render`

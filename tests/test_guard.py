@@ -12,14 +12,9 @@ from recon.train.trainer import Trainer
 from tests.test_train import small_cfg, tiny
 
 
-@pytest.fixture(scope="module", autouse=True)
-def two_threads():
-    """The rollback runs' numbers depend on the float summation order: pinned to the appliance's 2
-    threads (as tests/test_tracking.py), with bounds from the spread over 1-4 threads."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(2)
-    yield
-    torch.set_num_threads(before)
+# The rollback runs' numbers depend on the float summation order: 2 threads (the appliance's),
+# bounds from the spread over 1-4 threads.
+pytestmark = pytest.mark.usefixtures("two_threads")
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ from torch import nn
 
 from recon.dtg import routing
 from recon.config import DensifyConfig
-from recon.dtg.strategy import Strategy, duplicate, remove, split
+from recon.dtg.strategy import Strategy, append, duplicate, remove, split
 
 
 def make(n=10, seed=0):
@@ -49,6 +49,21 @@ def test_duplicate_copies_rows_and_moments():
     for k in params:
         assert torch.equal(params[k][10:], before[k][mask])
     assert torch.equal(opt.state[params["embedding_rgb"]]["exp_avg"][10:], m_before[mask])
+
+
+def test_append_adds_rows_with_fresh_moments():
+    params, opt = make()
+    before = {k: p.detach().clone() for k, p in params.items()}
+    moments = opt.state[params["means"]]["exp_avg"].clone()
+    rows = {k: torch.full((3, *p.shape[1:]), 7.0) for k, p in params.items()}
+    append(params, opt, rows)
+    assert_consistent(params, opt)
+    assert params["means"].shape[0] == 13
+    for k in params:
+        assert torch.equal(params[k][:10], before[k]) and torch.equal(params[k][10:], rows[k])
+    state = opt.state[params["means"]]
+    assert torch.equal(state["exp_avg"][:10], moments) and not state["exp_avg"][10:].any()
+    assert not state["exp_avg_sq"][10:].any()
 
 
 def test_remove_and_split_keep_lengths():

@@ -56,6 +56,14 @@ def duplicate(model_params: nn.ParameterDict, optimizer: torch.optim.Optimizer, 
 
 
 @torch.no_grad()
+def append(model_params: nn.ParameterDict, optimizer: torch.optim.Optimizer, rows: dict[str, torch.Tensor]) -> None:
+    """Append new Gaussians: rows holds every per-Gaussian tensor's new rows (same keys as the
+    model); their Adam moments start at zero."""
+    _swap(model_params, optimizer, lambda k, x: torch.cat([x, rows[k].to(x.dtype)]),
+          lambda k, m: torch.cat([m, torch.zeros((len(rows[k]), *m.shape[1:]), dtype=m.dtype)]))
+
+
+@torch.no_grad()
 def remove(model_params: nn.ParameterDict, optimizer: torch.optim.Optimizer, mask: torch.Tensor) -> None:
     """Drop the rows in mask (N,) bool."""
     keep = ~mask

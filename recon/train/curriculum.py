@@ -56,6 +56,14 @@ class TimeWindow:
         return self.cfg.grow_every > 0 and len(self.times) > 1
 
     @property
+    def grown(self) -> bool:
+        """Whether the window has taken in a step beyond its starting ones."""
+        if self.bounds is None:
+            return False
+        mid = round((self.cfg.center if self.cfg.center >= 0 else 0.5) * (len(self.times) - 1))
+        return self.bounds[1] - self.bounds[0] > min(mid + self.cfg.start_steps, len(self.times) - 1) - max(mid - self.cfg.start_steps, 0)
+
+    @property
     def complete(self) -> bool:
         return not self.enabled or self.bounds == (0, len(self.times) - 1)
 

@@ -10,7 +10,7 @@ from recon.config import TrainConfig
 from recon.dtg.gaussians import init_gaussians, knn_mean_sq_dist, trajectory_knots
 from recon.dtg.model import DTGModel
 from recon.dtg.motion import connected_clusters
-from recon.dtg.points import changing_points, initial_temperatures, observed_time
+from recon.dtg.points import changing_points, initial_temperatures, observed_time, sample_views, transient_points
 from recon.scene import Scene
 
 
@@ -28,9 +28,8 @@ def initial_background(scene: Scene, modality: str) -> torch.Tensor:
     return torch.cat(border).median(0).values if border else torch.zeros(3 if modality == "rgb" else 1)
 
 
-def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log) -> DTGModel:
-    """A new model from the scene's initial points (at most cfg.max_points of them). May set
-    cfg.curriculum.center (when it is automatic) to the instant the moving points were seen."""
+def initial_points(cfg: TrainConfig, scene: Scene, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """The dataset's initial points (at most cfg.max_points of them): (xyz (P, 3), rgb (P, 3) in [0, 1])."""
     ds = scene.dataset
     if ds.points_xyz is None or len(ds.points_xyz) == 0:
         raise ValueError(f"{ds.root}: no initial points (points3d.ply); recon needs an SfM point cloud")
@@ -42,9 +41,50 @@ def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log) -> 
     if len(pts) > cfg.max_points:
         keep = torch.randperm(len(pts), generator=gen)[: cfg.max_points]
         pts, rgb = pts[keep], rgb[keep]
+    return pts, rgb
+
+
+def warm_up_iterations(cfg: TrainConfig) -> int:
+    """Iterations of the static warm-up before body discovery (at most 15 % of the run); 0: the
+    bodies come from the initial points at the start."""
+    m = cfg.model
+    if not (m.motion_bases and m.deformation != "none" and cfg.curriculum.discover_after > 0):
+        return 0
+    return max(1, min(cfg.curriculum.discover_after, int(0.15 * cfg.iterations)))
+
+
+def body_candidates(cfg: TrainConfig, scene: Scene, pts: torch.Tensor, rgb: torch.Tensor) -> torch.Tensor:
+    """(P,) bool: initial points that may lie on moving objects (the scene changes where they
+    project, or their own colour is seen only now and then): held out of the static warm-up."""
+    m = cfg.model
+    return changing_points(scene, pts, m.split_rgb, m.split_kelvin, m.split_fraction) | transient_points(scene, pts, rgb)
+
+
+def held_points(cfg: TrainConfig, scene: Scene) -> tuple[torch.Tensor, torch.Tensor]:
+    """The candidate points initial_model held out (recomputed, as on a resumed run)."""
+    pts, rgb = initial_points(cfg, scene, torch.Generator().manual_seed(cfg.seed))
+    held = body_candidates(cfg, scene, pts, rgb)
+    return pts[held], rgb[held]
+
+
+def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log
+                  ) -> tuple[DTGModel, tuple[torch.Tensor, torch.Tensor] | None]:
+    """A new model from the scene's initial points, and the points held out of it for body
+    discovery (recon/train/discover.py; None without). Without discovery the bodies come from the
+    points (_motion_bodies), which may set cfg.curriculum.center (when it is automatic) to the
+    instant the moving points were seen."""
+    pts, rgb = initial_points(cfg, scene, gen)
     n_times = scene.steps_per_unit_time()
     m = cfg.model
+    held = None
     bases = m.motion_bases and m.deformation != "none"
+    if warm_up_iterations(cfg):
+        mask = body_candidates(cfg, scene, pts, rgb)
+        held = (pts[mask], rgb[mask])
+        pts, rgb = pts[~mask], rgb[~mask]
+        log(f"{int(mask.sum())} of {len(mask)} initial points may lie on moving objects: held out of a static "
+            f"warm-up of {warm_up_iterations(cfg)} iterations, then searched for bodies")
+        bases = False
     dynamic = changing_points(scene, pts, m.split_rgb, m.split_kelvin, m.split_fraction) \
         if m.motion_split or bases else None
     if dynamic is not None:
@@ -57,7 +97,22 @@ def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log) -> 
     params = init_gaussians(pts, rgb, temps, m, cfg.routing, gen, trajectory_knots(m, n_times),
                             dynamic if m.motion_split else None, basis)
     bgs = {mod: initial_background(scene, mod) for mod in m.modalities}
-    return DTGModel(m, params, n_times=n_times, backgrounds=bgs, pivots=pivots)
+    return DTGModel(m, params, n_times=n_times, backgrounds=bgs, pivots=pivots), held
+
+
+def body_gaussians(cfg: TrainConfig, scene: Scene, pts: torch.Tensor, rgb: torch.Tensor, basis: torch.Tensor,
+                   t: float, gen: torch.Generator) -> dict[str, torch.Tensor]:
+    """New Gaussians (every per-Gaussian tensor) at points (M, 3) of bodies basis (M,) (1-based),
+    their temperature read from the thermal views at time t."""
+    m = cfg.model
+    temps = None
+    if "thermal" in m.modalities:
+        views = scene.views_at("thermal", t) or scene.train["thermal"]
+        values, seen = sample_views(scene, views, pts)
+        temps = (values[..., 0] * seen).sum(0) / seen.sum(0).clamp_min(1)
+        temps = torch.where(seen.any(0), temps, initial_temperatures(scene, pts)).clamp(0, 1)
+    return init_gaussians(pts, rgb, temps, m, cfg.routing, gen, trajectory_knots(m, scene.steps_per_unit_time()),
+                          None, basis.float())
 
 
 def _motion_bodies(cfg: TrainConfig, scene: Scene, pts, rgb, dynamic, log):

@@ -28,7 +28,10 @@ from recon.train.checkpoint import read_checkpoint, write_checkpoint
 from recon.train.curriculum import TimeWindow, continue_beyond, frames_at, place_bases
 from recon.train.guard import DivergenceGuard, Event, TrainingDiverged, median_motion, nonfinite_parameter
 from recon.train.holdout import holdout_psnr, holdout_views
-from recon.train.initial import initial_model
+from recon.train.initial import body_gaussians, held_points, initial_model, warm_up_iterations
+from recon.train.discover import DiscoverSettings, group_bodies, on_moving_object
+from recon.dtg.motion import MotionBases
+from recon.dtg.strategy import append
 from recon.train.optim import build_optimizer, update_learning_rates
 from recon.train.progress import progress_line
 from recon.train.schedule import Schedule
@@ -57,7 +60,10 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.gen = torch.Generator().manual_seed(cfg.seed)
         self.extent = scene.extent()
-        self.model = model if model is not None else initial_model(cfg, scene, self.gen, self.log)
+        self.held = None          # initial points held out of a static warm-up, for body discovery
+        if model is None:
+            model, self.held = initial_model(cfg, scene, self.gen, self.log)
+        self.model = model
         check_params(cfg.model, dict(self.model.gaussians))
         self.optimizer = build_optimizer(self.cfg, self.model, self.extent)
         if not cfg.densify.max_gaussians:
@@ -81,7 +87,10 @@ class Trainer:
         self._hold_over = False
         self.progress_fn = None    # live training (recon.live.follow) drives the schedule itself
         self.holdout = self._holdout_views()
-        self.window = TimeWindow(cfg.curriculum, scene.times, cfg.iterations)
+        # with body discovery the window's clock starts after the static warm-up
+        self.warmup = warm_up_iterations(cfg) if self.held is not None else 0
+        self.window_start = self.warmup
+        self.window = TimeWindow(cfg.curriculum, scene.times, cfg.iterations - self.warmup)
         if self.cfg.stop.converge and not self.validation_times:
             self.schedule.release("no held-out time steps to judge convergence (fewer than "
                                   f"{cfg.stop.validation_every // 2 + 1}): the nominal schedule")
@@ -183,9 +192,18 @@ class Trainer:
         background = None
         if modality == "rgb" and float(torch.rand((), generator=self.gen)) < self.cfg.loss.random_background_rgb:
             background = torch.rand(self.model.backgrounds[modality].shape, generator=self.gen)
+        frozen = None
+        if (self.cfg.curriculum.bodies_only and self.held is None and not self.window.complete
+                and self.window.contains(t) and "motion_basis" in self.model.gaussians
+                and (not self.cfg.curriculum.bodies_only_hold or not self.window.grown)):
+            # while the window grows, the static scene learns from the (trimmed) steps outside it
+            # only: at the window's few steps it would paint the moving objects where they are then
+            frozen = self.model.gaussians["motion_basis"] == 0
         image, out, g = render(self.model, modality, t, view.camera, p, sh_degree=self.active_sh_degree(modality, p),
-                               mask=mask, rgb_geometry=rgb_geometry, background=background)
-        if not self.window.contains(t):
+                               mask=mask, rgb_geometry=rgb_geometry, background=background, frozen=frozen)
+        if self.held is not None or not self.window.contains(t):
+            # before discovery every step, then the steps outside the window: a trimmed loss, so
+            # the static scene learns from them while what moves (the worst pixels) is left out
             keep = self.cfg.curriculum.outside_keep
             rec = trimmed_l1(image, target, None, keep) if modality == "rgb" else \
                 self.cfg.loss.thermal_l1 * trimmed_l1(image[..., 0], target, valid, keep)
@@ -231,13 +249,19 @@ class Trainer:
                               self.extent, self.lr_scale)
         # the window's clock: iterations, or the share of a --minutes budget when iterations are
         # slow (so the window is whole by `complete_by` of the time, whatever the pace)
-        taken_in = self.window.update(max(self.iteration, int(p * self.cfg.iterations)))
+        if self.held is not None and self.iteration >= self.warmup:
+            self.discover_bodies()
+        clock = max(self.iteration, int(p * self.cfg.iterations)) - self.window_start
+        taken_in = self.window.update(clock) if self.held is None else []
         if taken_in:            # (all knots start at rest: nothing to carry on before)
             continue_beyond(self.model, *self.window.span())
             if self.cfg.curriculum.search and self.model.motion is not None:
                 for side, when in taken_in:
                     place_bases(self.model, frames_at(self.scene, self.cfg.model.modalities, when), when, side)
-        t = self.window.pick(self.train_times, self.gen)
+        if self.held is not None:
+            t = self.train_times[int(torch.randint(len(self.train_times), (1,), generator=self.gen))]
+        else:
+            t = self.window.pick(self.train_times, self.gen)
         mods = [m for m in ("rgb", "thermal") if m in self.cfg.model.modalities and self.scene.views_at(m, t)]
         noise = self._routing_noise(p)
         stats, rgb_geometry = {}, None
@@ -271,6 +295,43 @@ class Trainer:
             self.log(f"no more densification: {self.model.num_gaussians} Gaussians")
         if not self.cfg.densify.auto_stop:
             self.train_times = list(self.scene.times)
+
+    @torch.no_grad()
+    def discover_bodies(self) -> None:
+        """After the static warm-up: the held-out points on moving objects become rigid bodies at
+        the time step where most of them are seen (recon/train/discover.py); the window grows
+        from there. The rest of the held-out points are dropped (the static scene has its own)."""
+        pts, rgb = self.held
+        self.held = None
+        settings = DiscoverSettings(max_bodies=self.cfg.model.motion_bases)
+        found = group_bodies(pts, on_moving_object(self.model, self.scene, pts, rgb, settings), self.scene.times,
+                             settings) if len(pts) else None
+        if found is None:
+            self.log(f"iteration {self.iteration}: no moving bodies found; the scene is trained static")
+            self.cfg.curriculum.grow_every = 0          # no window (a resumed run reads it from the config)
+            self.window = TimeWindow(self.cfg.curriculum, self.scene.times)
+            return
+        index = torch.cat(found.members)
+        basis = torch.cat([torch.full((len(mem),), b + 1) for b, mem in enumerate(found.members)])
+        rows = body_gaussians(self.cfg, self.scene, pts[index], rgb[index], basis, found.center, self.gen)
+        append(self.model.gaussians, self.optimizer, rows)
+        pivots = torch.stack([pts[mem].mean(0) for mem in found.members])
+        self._set_motion(MotionBases(pivots, self.model.n_times))
+        self.cfg.curriculum.center = found.center
+        self.window_start = self.iteration
+        self.window = TimeWindow(self.cfg.curriculum, self.scene.times, self.cfg.iterations - self.iteration)
+        self._take_snapshot()            # a rollback must not return to a model without its bodies
+        self.log(f"iteration {self.iteration}: {len(found.members)} moving bodies from {len(index)} points "
+                 f"({', '.join(str(len(mm)) for mm in found.members)}), seen at t = {found.center:.3f}: "
+                 f"motion is learned outwards from there")
+
+    def _set_motion(self, motion: MotionBases) -> None:
+        self.model.motion = motion
+        params = {"motion_rotation": motion.rotation, "motion_translation": motion.translation}
+        for group in self.optimizer.param_groups:
+            if group["name"] in params:
+                self.optimizer.state.pop(group["params"][0], None)
+                group["params"][0] = params[group["name"]]
 
     # ------------------------------------------------------------------ evaluation
     def holdout_psnr(self) -> dict[str, float]:
@@ -427,6 +488,7 @@ class Trainer:
             "schedule": self.schedule.state(), "lr_scale": self.lr_scale, "events": self.events,
             "guard_best": self.guard.best_holdout,
             "extent": self.extent,
+            "window_start": self.window_start,
         }
         write_checkpoint(state, path)
 
@@ -459,5 +521,10 @@ class Trainer:
             if trainer.schedule.released and not cfg.densify.auto_stop:
                 trainer.train_times = list(scene.times)
         trainer.extent = state["extent"]
+        warmup = warm_up_iterations(cfg)
+        if warmup and trainer.iteration < warmup:          # still in the static warm-up
+            trainer.held, trainer.warmup = held_points(cfg, scene), warmup
+        trainer.window_start = state.get("window_start", 0)
+        trainer.window = TimeWindow(cfg.curriculum, scene.times, cfg.iterations - trainer.window_start)
         trainer.strategy.extent = state["extent"]
         return trainer

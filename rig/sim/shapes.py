@@ -46,6 +46,10 @@ class Sphere:
         lat = np.arccos(np.clip(p[:, 2] / self.radius, -1, 1))
         return np.stack([lon * self.radius, lat * self.radius], axis=1)
 
+    def contains(self, p: np.ndarray, tol: float = 0.0) -> np.ndarray:
+        """(N,) whether local points p (N, 3) lie inside the shape grown by tol."""
+        return np.linalg.norm(p, axis=1) < self.radius + tol
+
     def sample_surface(self, n: int, rng: np.random.Generator) -> np.ndarray:
         v = rng.normal(size=(n, 3))
         return self.radius * v / np.linalg.norm(v, axis=1, keepdims=True)
@@ -94,6 +98,10 @@ class Box:
         v = np.where(axis == 2, p[:, 1], p[:, 2])
         offset = (axis * 2 + (n[np.arange(len(n)), axis] > 0)) * 1.7  # face id -> texture region
         return np.stack([u + offset, v], axis=1)
+
+    def contains(self, p: np.ndarray, tol: float = 0.0) -> np.ndarray:
+        """(N,) whether local points p (N, 3) lie inside the box grown by tol."""
+        return np.all(np.abs(p) < np.asarray(self.half) + tol, axis=1)
 
     def sample_surface(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """Area-uniform points on the six faces."""
@@ -152,6 +160,11 @@ class Cylinder:
         u = np.where(side, arc, p[:, 0] + 4 * self.radius)
         v = np.where(side, p[:, 2], p[:, 1] + self.height + 2 * self.radius)
         return np.stack([u, v], axis=1)
+
+    def contains(self, p: np.ndarray, tol: float = 0.0) -> np.ndarray:
+        """(N,) whether local points p (N, 3) lie inside the cylinder grown by tol."""
+        r = np.hypot(p[:, 0], p[:, 1])
+        return (r < self.radius + tol) & (p[:, 2] > -tol) & (p[:, 2] < self.height + tol)
 
     def sample_surface(self, n: int, rng: np.random.Generator) -> np.ndarray:
         side_area = 2 * np.pi * self.radius * self.height
