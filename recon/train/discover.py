@@ -38,6 +38,7 @@ class DiscoverSettings:
     in_front: float = 0.04            # a point must be this fraction of the depth nearer than the surface
     colour_tolerance: float = 0.1     # its colour as seen (max over channels, 3x3 neighbourhood)
     free_space: float = 0.3           # fraction of the steps that must see through a point
+    near_steps: float = 3.0           # a point's steps on an object must centre this close to the bodies' step
     min_points: int = 3               # a body has at least this many points
     max_bodies: int = 32
 
@@ -94,14 +95,21 @@ def on_moving_object(model, scene: Scene, points: torch.Tensor, colors: torch.Te
 def group_bodies(points: torch.Tensor, on: torch.Tensor, times: list[float],
                  settings: DiscoverSettings) -> Bodies | None:
     """The time step with the most points on moving objects, and the bodies there: connected
-    groups of those points (linked within 3x their median nearest-neighbour spacing)."""
-    counts = on.sum(1)
+    groups (linked within 3x their median nearest-neighbour spacing) of the points on an object
+    at that step and recorded near it: the middle of the steps a point is on an object is within
+    `settings.near_steps` of it (a point recorded at another instant can still lie inside the
+    object for a few steps, or where its path crosses back)."""
+    steps = torch.arange(len(times), dtype=torch.float32)[:, None]
+    count = on.sum(0)
+    middle = (on * steps).sum(0) / count.clamp_min(1)
+    near = lambda i: on[i] & ((middle - i).abs() <= settings.near_steps)  # noqa: E731
+    counts = torch.stack([near(i).sum() for i in range(len(times))])
     if int(counts.max()) < settings.min_points:
         return None
     # most points; among equals the middle of the sequence (motion is learned outwards from it)
     mid = (len(times) - 1) / 2
     best = max(range(len(times)), key=lambda i: (int(counts[i]), -abs(i - mid)))
-    index = on[best].nonzero()[:, 0]
+    index = near(best).nonzero()[:, 0]
     spacing = float(knn_mean_sq_dist(points[index], k=1).sqrt().median()) if len(index) > 1 else 0.0
     labels = connected_clusters(points[index], 3 * spacing) if len(index) > 1 else torch.zeros(1, dtype=torch.long)
     sizes = torch.bincount(labels)
@@ -109,4 +117,3 @@ def group_bodies(points: torch.Tensor, on: torch.Tensor, times: list[float],
     if not members:
         return None
     return Bodies(times[best], members[: settings.max_bodies], [int(c) for c in counts])
-
