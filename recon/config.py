@@ -83,6 +83,8 @@ class ModelConfig:
     basis_points: int = 30           # a connected cluster of flagged points with fewer than
                                      # max(this / 5, 3) points is not a body (stays static)
     basis_gate_init: float = 3.0     # starting gate logit of a Gaussian in a basis (sigmoid: 0.95)
+    body_reach: float = 0.0          # a body's Gaussians stay within this x its farthest initial point
+                                     # of its pivot (MotionBases.keep_within); 0: unbounded
     # A bias on the deformation's geometry outputs moves every Gaussian alike. Adam moves it by
     # about the learning rate each step whatever its gradient, so on a room-scale scene of the
     # family (bench/family) the whole model drifted by up to 0.8 m in 150 iterations and training

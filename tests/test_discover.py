@@ -89,3 +89,37 @@ def test_a_run_with_discovery_resumes_bit_for_bit(scene, tmp_path, stop_at):
     for k, p in a.model.gaussians.items():
         assert torch.equal(p, b.model.gaussians[k]), k
     assert torch.equal(a.model.motion.translation, b.model.motion.translation)
+
+
+def test_a_body_keeps_within_its_reach():
+    """MotionBases.keep_within: a body's Gaussians are pulled back onto the sphere of its radius
+    about its pivot and their scales capped at half of it; static Gaussians and unbounded bodies
+    (radius 0, runs written before) are left alone."""
+    from recon.dtg.motion import MotionBases, body_radii
+    pivots = torch.tensor([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0]])
+    points = torch.tensor([[0.1, 0.0, 0.0], [0.0, 0.2, 0.0], [5.3, 0.0, 0.0], [9.0, 9.0, 9.0]])
+    basis = torch.tensor([1.0, 1.0, 2.0, 0.0])
+    radii = body_radii(points, basis, pivots, 1.5)
+    assert torch.allclose(radii, torch.tensor([0.3, 0.45]))
+    bases = MotionBases(pivots, 4, radii)
+    means = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.1, 0.0], [5.0, 3.0, 0.0], [20.0, 0.0, 0.0]])
+    log_scales = torch.zeros(4, 3)
+    bases.keep_within(means, log_scales, basis)
+    assert torch.allclose(means[0], torch.tensor([0.3, 0.0, 0.0]))          # pulled back
+    assert torch.allclose(means[1], torch.tensor([0.0, 0.1, 0.0]))          # inside: untouched
+    assert torch.allclose(means[2], torch.tensor([5.0, 0.45, 0.0]))
+    assert torch.equal(means[3], torch.tensor([20.0, 0.0, 0.0]))            # static
+    assert torch.allclose(log_scales[:3].exp(), torch.tensor([[0.15] * 3, [0.15] * 3, [0.225] * 3]))
+    assert torch.equal(log_scales[3], torch.zeros(3))
+    far = means * 10
+    MotionBases(pivots, 4).keep_within(far, log_scales, basis)               # radius 0: unbounded
+    assert torch.equal(far, means * 10)
+
+
+def test_a_checkpoint_from_before_body_reach_loads(scene):
+    from recon.dtg.model import DTGModel
+    cfg = make_config("dtg", iterations=100, log_every=10**9)
+    state = Trainer(cfg, scene, log=lambda _: None).model.state_for_checkpoint()
+    del state["state_dict"]["motion.radii"]
+    model = DTGModel.from_checkpoint(cfg.model, state)
+    assert model.motion.count >= 1 and not model.motion.radii.any()

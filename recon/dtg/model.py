@@ -41,7 +41,8 @@ def time_rows(cfg: ModelConfig, n_times: int) -> tuple[int, int]:
 
 class DTGModel(nn.Module):
     def __init__(self, cfg: ModelConfig, params: dict[str, torch.Tensor], n_times: int,
-                 backgrounds: dict[str, torch.Tensor] | None = None, pivots: torch.Tensor | None = None):
+                 backgrounds: dict[str, torch.Tensor] | None = None, pivots: torch.Tensor | None = None,
+                 radii: torch.Tensor | None = None):
         super().__init__()
         self.cfg = cfg
         self.n_times = n_times
@@ -53,7 +54,7 @@ class DTGModel(nn.Module):
         self.deformers = nn.ModuleDict()
         self.motion = None
         if cfg.motion_bases and cfg.deformation != "none":
-            self.motion = MotionBases(pivots if pivots is not None else torch.zeros(0, 3), n_times)
+            self.motion = MotionBases(pivots if pivots is not None else torch.zeros(0, 3), n_times, radii)
         if cfg.deformation != "none":
             coarse, fine = time_rows(cfg, n_times)
             self.time_embedding = TimeEmbedding(cfg.time_embedding_dim, coarse, fine,
@@ -178,7 +179,7 @@ class DTGModel(nn.Module):
     def from_checkpoint(cls, cfg: ModelConfig, state: dict) -> "DTGModel":
         sd = state["state_dict"]
         params = {k[len("gaussians."):]: v.clone() for k, v in sd.items() if k.startswith("gaussians.")}
-        model = cls(cfg, params, state["n_times"], pivots=sd.get("motion.pivots"))
+        model = cls(cfg, params, state["n_times"], pivots=sd.get("motion.pivots"), radii=sd.get("motion.radii"))
         if model.motion is not None:        # a live run may have extended the knots
             for name in ("rotation", "translation"):
                 setattr(model.motion, name, nn.Parameter(sd[f"motion.{name}"].clone()))
@@ -186,6 +187,8 @@ class DTGModel(nn.Module):
             key = f"time_embedding.{name}"
             if key in sd:
                 setattr(model.time_embedding, name, nn.Parameter(sd[key].clone()))
+        if model.motion is not None and "motion.radii" not in sd:     # written before bodies had a reach
+            sd = {**sd, "motion.radii": torch.zeros(model.motion.count)}
         model.load_state_dict(sd)
         return model
 

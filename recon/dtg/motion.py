@@ -60,10 +60,12 @@ class MotionBases(nn.Module):
     """B rigid trajectories over K time knots: rotation (B, K, 3) axis-angle about pivots (B, 3)
     and translation (B, K, 3), linear between knots; all identity at start."""
 
-    def __init__(self, pivots: torch.Tensor, knots: int):
+    def __init__(self, pivots: torch.Tensor, knots: int, radii: torch.Tensor | None = None):
         super().__init__()
         b = pivots.shape[0]
         self.register_buffer("pivots", pivots.clone().float())
+        # how far a body's Gaussians may reach from its pivot (0: unbounded; keep_within)
+        self.register_buffer("radii", torch.zeros(b) if radii is None else radii.clone().float())
         self.rotation = nn.Parameter(torch.zeros(b, knots, 3))
         self.translation = nn.Parameter(torch.zeros(b, knots, 3))
 
@@ -74,6 +76,25 @@ class MotionBases(nn.Module):
     def at(self, t: float) -> tuple[torch.Tensor, torch.Tensor]:
         """(rotation (B, 3) axis-angle, translation (B, 3)) at time t."""
         return lerp_rows(self.rotation, t, dim=1), lerp_rows(self.translation, t, dim=1)
+
+    @torch.no_grad()
+    def keep_within(self, means: torch.Tensor, log_scales: torch.Tensor, basis: torch.Tensor,
+                    scale_share: float = 0.5) -> None:
+        """In place: each body's Gaussians (means (N, 3) canonical, log_scales (N, 3), basis (N,))
+        stay within its radius of its pivot, none larger than scale_share of it. A body is one
+        object: without a bound its Gaussians spread over the frame to fit whatever the static
+        scene gets wrong, and a cloud cannot be tracked."""
+        if not bool((self.radii > 0).any()):
+            return
+        idx = (basis > 0).nonzero()[:, 0]
+        b = basis[idx].long() - 1
+        r = self.radii[b]
+        keep = r > 0
+        idx, b, r = idx[keep], b[keep], r[keep]
+        off = means[idx] - self.pivots[b]
+        dist = off.norm(dim=1).clamp_min(1e-12)
+        means[idx] = self.pivots[b] + off * (r / dist).clamp(max=1.0)[:, None]
+        log_scales[idx] = torch.minimum(log_scales[idx], torch.log(scale_share * r)[:, None])
 
     def smoothness(self, extent: float) -> torch.Tensor:
         """Squared second difference of rotation (rad) and translation (in scene extents), summed
@@ -113,6 +134,19 @@ def apply_motion(means: torch.Tensor, quats: torch.Tensor, basis: torch.Tensor, 
     means = means.index_copy(0, moving, new_mu)
     quats = quats.index_copy(0, moving, new_q)
     return means, quats
+
+
+def body_radii(points: torch.Tensor, basis: torch.Tensor, pivots: torch.Tensor, reach: float) -> torch.Tensor:
+    """(B,) how far each body may reach: `reach` x its farthest point (points (M, 3), basis (M,)
+    1-based) from its pivot (B, 3); zeros (unbounded) when reach is 0."""
+    radii = torch.zeros(len(pivots))
+    if reach <= 0:
+        return radii
+    for b in range(len(pivots)):
+        mine = points[basis == b + 1]
+        if len(mine):
+            radii[b] = reach * float((mine - pivots[b]).norm(dim=1).max())
+    return radii
 
 
 def connected_clusters(points: torch.Tensor, radius: float) -> torch.Tensor:

@@ -9,7 +9,7 @@ import torch
 from recon.config import TrainConfig
 from recon.dtg.gaussians import init_gaussians, knn_mean_sq_dist, trajectory_knots
 from recon.dtg.model import DTGModel
-from recon.dtg.motion import connected_clusters
+from recon.dtg.motion import body_radii, connected_clusters
 from recon.dtg.points import changing_points, initial_temperatures, observed_time, sample_views, transient_points
 from recon.scene import Scene
 
@@ -97,7 +97,8 @@ def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log
     params = init_gaussians(pts, rgb, temps, m, cfg.routing, gen, trajectory_knots(m, n_times),
                             dynamic if m.motion_split else None, basis)
     bgs = {mod: initial_background(scene, mod) for mod in m.modalities}
-    return DTGModel(m, params, n_times=n_times, backgrounds=bgs, pivots=pivots), held
+    radii = body_radii(pts, basis, pivots, m.body_reach) if pivots is not None else None
+    return DTGModel(m, params, n_times=n_times, backgrounds=bgs, pivots=pivots, radii=radii), held
 
 
 def body_gaussians(cfg: TrainConfig, scene: Scene, pts: torch.Tensor, rgb: torch.Tensor, basis: torch.Tensor,

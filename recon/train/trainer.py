@@ -30,7 +30,7 @@ from recon.train.guard import DivergenceGuard, Event, TrainingDiverged, median_m
 from recon.train.holdout import holdout_psnr, holdout_views
 from recon.train.initial import body_gaussians, held_points, initial_model, warm_up_iterations
 from recon.train.discover import DiscoverSettings, group_bodies, on_moving_object
-from recon.dtg.motion import MotionBases
+from recon.dtg.motion import MotionBases, body_radii
 from recon.dtg.strategy import append
 from recon.train.optim import build_optimizer, update_learning_rates
 from recon.train.progress import progress_line
@@ -219,6 +219,9 @@ class Trainer:
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
+        if self.model.motion is not None:
+            gs = self.model.gaussians
+            self.model.motion.keep_within(gs["means"].data, gs["log_scales"].data, gs["motion_basis"])
         self.strategy.accumulate(modality, out.means2d.grad, out.radii, view.camera.width, view.camera.height)
         stats[f"loss_{modality}"] = float(rec.detach())
         return {"stats": stats, "geometry": {k: v.detach() for k, v in g["geometry_residuals"].items()}}
@@ -316,7 +319,8 @@ class Trainer:
         rows = body_gaussians(self.cfg, self.scene, pts[index], rgb[index], basis, found.center, self.gen)
         append(self.model.gaussians, self.optimizer, rows)
         pivots = torch.stack([pts[mem].mean(0) for mem in found.members])
-        self._set_motion(MotionBases(pivots, self.model.n_times))
+        radii = body_radii(pts[index], basis, pivots, self.cfg.model.body_reach)
+        self._set_motion(MotionBases(pivots, self.model.n_times, radii))
         self.cfg.curriculum.center = found.center
         self.window_start = self.iteration
         self.window = TimeWindow(self.cfg.curriculum, self.scene.times, self.cfg.iterations - self.iteration)
