@@ -263,3 +263,39 @@ def _result(rec, stats: dict, total: int) -> SfmResult:
     return SfmResult(c2w, cameras, np.array(xyz, np.float64).reshape(-1, 3),
                      np.array(rgb, np.uint8).reshape(-1, 3), np.array(err, np.float64), tracks, stats)
 
+
+
+def points_from_frames(dataset, progress=None, max_frames: int = 60) -> tuple[np.ndarray, np.ndarray]:
+    """Sparse points for a dataset that came without points3d.ply (FORMATS.md makes it optional):
+    SfM (run_sfm, exhaustive matching, the frames' own pinhole intrinsics kept fixed) on up to
+    `max_frames` training RGB frames spread over the sequence, then moved into the dataset's frame
+    by the similarity that maps the recovered camera centres onto the given ones. Moving objects
+    rarely triangulate (SfM keeps what the views agree on): the bodies of dtg then come from a
+    static warm-up or not at all. Returns (xyz (P, 3) float64, rgb (P, 3) uint8); raises SfmError
+    naming the dataset when fewer than 3 frames register."""
+    import tempfile
+
+    from recon.prepare.poses import umeyama
+    frames = dataset.split("rgb", "train")
+    if len(frames) < 3:
+        raise SfmError(f"{dataset.root}: no points3d.ply and only {len(frames)} training RGB frames to "
+                       f"triangulate points from; add an SfM point cloud (ply_file_path)")
+    picks = [frames[i] for i in np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int)]
+    f = picks[0]
+    opt = SfmOptions(matching="exhaustive", camera_model="PINHOLE",
+                     camera_params=f"{f.fx},{f.fy},{f.cx},{f.cy}", refine_intrinsics=False,
+                     single_camera=len({(p.fx, p.fy, p.cx, p.cy, p.width, p.height) for p in picks}) == 1)
+    names = [p.file_path for p in picks]
+    with tempfile.TemporaryDirectory(prefix="thermal4d-sfm-") as work:
+        try:
+            result = run_sfm(dataset.root, names, Path(work), opt, progress)
+        except SfmError as exc:
+            raise SfmError(f"{dataset.root}: no points3d.ply, and none could be triangulated from its RGB "
+                           f"frames ({exc}); add an SfM point cloud (ply_file_path)", exc.stats) from None
+    known = {p.file_path: p.c2w_opencv() for p in picks}
+    common = [n for n in names if n in result.c2w]
+    if len(common) < 3 or len(result.points_xyz) == 0:
+        raise SfmError(f"{dataset.root}: no points3d.ply, and SfM registered only {len(common)} of {len(names)} "
+                       f"RGB frames; add an SfM point cloud (ply_file_path)")
+    s, r, t = umeyama(np.stack([result.c2w[n][:3, 3] for n in common]), np.stack([known[n][:3, 3] for n in common]))
+    return s * result.points_xyz @ r.T + t, result.points_rgb

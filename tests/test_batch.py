@@ -62,7 +62,7 @@ def datasets(tmp_path_factory):
     root = tmp_path_factory.mktemp("batch_data")
     for name, seed in (("a", 1), ("b", 2)):
         simulate_dataset(root / name, SimulateConfig(frames=4, width=40, height=30, seed=seed, points=300))
-    broken = root / "broken"            # a dataset without its SfM points: recon run refuses it
+    broken = root / "broken"            # transforms.json names a points3d.ply that is gone: refused
     simulate_dataset(broken, SimulateConfig(frames=4, width=40, height=30, seed=3, points=300))
     (broken / "points3d.ply").unlink()
     return root

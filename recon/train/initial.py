@@ -12,6 +12,7 @@ from recon.dtg.model import DTGModel
 from recon.dtg.motion import body_radii, connected_clusters
 from recon.dtg.points import changing_points, initial_temperatures, observed_time, sample_views, transient_points
 from recon.scene import Scene
+from recon.sfm import points_from_frames
 
 
 def initial_background(scene: Scene, modality: str) -> torch.Tensor:
@@ -28,11 +29,14 @@ def initial_background(scene: Scene, modality: str) -> torch.Tensor:
     return torch.cat(border).median(0).values if border else torch.zeros(3 if modality == "rgb" else 1)
 
 
-def initial_points(cfg: TrainConfig, scene: Scene, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-    """The dataset's initial points (at most cfg.max_points of them): (xyz (P, 3), rgb (P, 3) in [0, 1])."""
+def initial_points(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log=print) -> tuple[torch.Tensor, torch.Tensor]:
+    """The dataset's initial points (at most cfg.max_points of them): (xyz (P, 3), rgb (P, 3) in [0, 1]).
+    A dataset without points3d.ply gets them triangulated from its RGB frames (recon/sfm.py)."""
     ds = scene.dataset
     if ds.points_xyz is None or len(ds.points_xyz) == 0:
-        raise ValueError(f"{ds.root}: no initial points (points3d.ply); recon needs an SfM point cloud")
+        log(f"{ds.root}: no initial points (points3d.ply): triangulating them from the RGB frames (SfM)")
+        ds.points_xyz, ds.points_rgb = points_from_frames(ds)
+        log(f"{len(ds.points_xyz)} points triangulated")
     pts = torch.as_tensor(np.asarray(ds.points_xyz), dtype=torch.float32)
     rgb = torch.as_tensor(np.asarray(ds.points_rgb if ds.points_rgb is not None else np.full((len(pts), 3), 0.5)),
                           dtype=torch.float32)
@@ -73,7 +77,7 @@ def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log
     discovery (recon/train/discover.py; None without). Without discovery the bodies come from the
     points (_motion_bodies), which may set cfg.curriculum.center (when it is automatic) to the
     instant the moving points were seen."""
-    pts, rgb = initial_points(cfg, scene, gen)
+    pts, rgb = initial_points(cfg, scene, gen, log)
     n_times = scene.steps_per_unit_time()
     m = cfg.model
     held = None
