@@ -233,15 +233,16 @@ void project_backward(int64_t n, const float* means, const float* quats, const f
   const int nt = std::max(1, threads);
   const int64_t n_chunks = (n + kChunk - 1) / kChunk;
   const int64_t sh_row = (int64_t)sh.K * sh.C;
-  // Per thread: dL/dR_view (9), dL/dtv (3), sum of dL/d(view direction) (3). Every per-Gaussian
-  // gradient is written by exactly one thread, so nothing else needs a reduction.
+  // Per chunk: dL/dR_view (9), dL/dtv (3), sum of dL/d(view direction) (3), summed in chunk
+  // order afterwards (the same bits whichever thread took a chunk). Every per-Gaussian gradient
+  // is written by exactly one thread, so nothing else needs a reduction.
   constexpr int kAcc = 15;
-  std::vector<double> acc_view((size_t)kAcc * nt, 0.0);
+  std::vector<double> acc_view((size_t)kAcc * n_chunks, 0.0);
 #pragma omp parallel num_threads(nt)
   {
-    double* acc = acc_view.data() + (size_t)kAcc * omp_get_thread_num();
 #pragma omp for schedule(dynamic, 1)
     for (int64_t chunk = 0; chunk < n_chunks; ++chunk) {
+      double* acc = acc_view.data() + (size_t)kAcc * chunk;
       f8 lane_acc[kAcc];
       for (f8& a : lane_acc) a = splat8(0.f);
       const int64_t end = std::min(n, (chunk + 1) * kChunk);
@@ -353,8 +354,8 @@ void project_backward(int64_t n, const float* means, const float* quats, const f
   }
   if (!v_viewmat) return;
   double g[kAcc] = {0};
-  for (int t = 0; t < nt; ++t)
-    for (int k = 0; k < kAcc; ++k) g[k] += acc_view[(size_t)kAcc * t + k];
+  for (int64_t c = 0; c < n_chunks; ++c)
+    for (int k = 0; k < kAcc; ++k) g[k] += acc_view[(size_t)kAcc * c + k];
   // dirs = m - campos, campos = -R^T tv: dL/dcampos = -sum dL/ddir
   for (int a = 0; a < 3; ++a)
     for (int b = 0; b < 3; ++b) {
