@@ -38,6 +38,13 @@ def trimmed_l1(pred: torch.Tensor, gt: torch.Tensor, valid: torch.Tensor | None,
     return err[err <= limit].mean()
 
 
+def gather_rows(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """x[index] (index of any shape, rows may repeat) through index_select: the backward of
+    advanced indexing (index_put_ with accumulate) sums repeated rows in an order that depends on
+    thread timing, so training did not repeat bit for bit; index_add_ sums them in index order."""
+    return x.index_select(0, index.reshape(-1)).view(*index.shape, *x.shape[1:])
+
+
 def knn_indices(points: torch.Tensor, k: int, chunk: int = 2048) -> torch.Tensor:
     """Indices (M, k) of the k nearest other points of points (M, 3)."""
     k = min(k, points.shape[0] - 1)
@@ -81,6 +88,6 @@ class EmbeddingSmoothness:
         w = torch.exp(-self.falloff * d2 / max(self.extent, 1e-9) ** 2)
         total = 0
         for e in embeddings:
-            diff = (e[idx, None] - e[nb]).pow(2).sum(-1)
+            diff = (e[idx, None] - gather_rows(e, nb)).pow(2).sum(-1)
             total = total + torch.sqrt(w * diff + 1e-20).mean()
         return total

@@ -28,7 +28,7 @@ import torch
 
 from recon.config import PriorConfig
 from recon.dtg.gaussians import quat_to_rotmat
-from recon.dtg.losses import knn_indices
+from recon.dtg.losses import gather_rows, knn_indices
 
 
 def rigidity_terms(means_c: torch.Tensor, quats_c: torch.Tensor, means_t: torch.Tensor,
@@ -39,11 +39,11 @@ def rigidity_terms(means_c: torch.Tensor, quats_c: torch.Tensor, means_t: torch.
     (means (N, 3), quats (N, 4)). Canonical values act as the reference (no gradient)."""
     means_c, quats_c = means_c.detach(), quats_c.detach()
     off_c = (means_c[nb] - means_c[idx, None]) / extent                 # (S, k, 3)
-    off_t = (means_t[nb] - means_t[idx, None]) / extent
+    off_t = (gather_rows(means_t, nb) - means_t[idx, None]) / extent
     rot_c = quat_to_rotmat(quats_c)
     rel = quat_to_rotmat(quats_t) @ rot_c.transpose(1, 2)                # (N', 3, 3) dR = R_t R_c^T
     # rel is computed for every row of quats_t given; index it for the sample and neighbours
-    rel_i, rel_j = rel[idx], rel[nb]                                     # (S, 3, 3), (S, k, 3, 3)
+    rel_i, rel_j = rel[idx], gather_rows(rel, nb)                                   # (S, 3, 3), (S, k, 3, 3)
     predicted = torch.einsum("sab,skb->ska", rel_i, off_c)
     wsum = weights.sum().clamp_min(1e-12)
     rigid = (weights * (off_t - predicted).norm(dim=-1)).sum() / wsum
@@ -113,7 +113,7 @@ class MotionPriors:
             w = torch.exp(-cfg.knn_falloff * d2 / self.extent ** 2)
             if "dynamic" in canonical:      # static Gaussians do not move: only moving pairs count
                 dyn = canonical["dynamic"]
-                w = w * dyn[idx, None] * dyn[nb]
+                w = w * dyn[idx, None] * gather_rows(dyn, nb)
             rows = torch.unique(torch.cat([idx, nb.flatten()]))
             # rotations only for the rows used: remap indices into `rows`
             pos = torch.full((n,), -1, dtype=torch.long)
