@@ -123,6 +123,20 @@ KEYS = [("psnr_rgb", "RGB PSNR"), ("psnr_rgb_moving", "RGB moving"), ("psnr_ther
         ("ms_per_it", "ms/it")]
 
 
+def family_data(out: Path, scene: str, seed: int, **simulate) -> Path:
+    """OUT/data/SCENE-sSEED, simulated (SimulateConfig fields `simulate`) unless already there."""
+    data = out / "data" / f"{scene}-s{seed}"
+    if not (data / "transforms.json").exists():
+        simulate_dataset(data, SimulateConfig(variant=scene, seed=seed, **simulate))
+    return data
+
+
+def median_cell(rows: list[dict], key: str) -> str:
+    """The median of `key` over rows that have it, as a table cell ("–" when none do)."""
+    vals = [r[key] for r in rows if r.get(key) is not None]
+    return f"{statistics.median(vals):.3g}" if vals else "–"
+
+
 def markdown(rows: list[dict], scenes: list[str], rungs: list[str]) -> str:
     parts = []
     for scene in scenes:
@@ -130,10 +144,7 @@ def markdown(rows: list[dict], scenes: list[str], rungs: list[str]) -> str:
                  "|---|" + "---|" * len(KEYS)]
         for rung in rungs:
             picked = [r for r in rows if r["scene"] == scene and r["rung"] == rung]
-            cells = []
-            for key, _ in KEYS:
-                vals = [r[key] for r in picked if r.get(key) is not None]
-                cells.append(f"{statistics.median(vals):.3g}" if vals else "–")
+            cells = [median_cell(picked, key) for key, _ in KEYS]
             lines.append(f"| {rung} | " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
     return "\n\n".join(parts) + "\n"
@@ -158,9 +169,7 @@ def main() -> int:
     jobs = []
     for scene in scenes:
         for seed in seeds:
-            data = args.out / "data" / f"{scene}-s{seed}"
-            if not (data / "transforms.json").exists():
-                simulate_dataset(data, SimulateConfig(variant=scene, frames=args.frames, width=w, height=h, seed=seed))
+            data = family_data(args.out, scene, seed, frames=args.frames, width=w, height=h)
             jobs += [{"scene": scene, "seed": seed, "data": str(data), "rung": rung, "iterations": args.iterations,
                       "threads": args.threads} for rung in rungs]
     with ProcessPoolExecutor(args.jobs) as pool:

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -34,11 +33,10 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
 import recon.train.initial as initial  # noqa: E402
-from ablation import train_fit_moving  # noqa: E402
+from ablation import family_data, median_cell, train_fit_moving  # noqa: E402
 from recon.batch.summary import flatten  # noqa: E402
 from recon.config import make_config  # noqa: E402
 from recon.data import load_dataset  # noqa: E402
-from recon.data.simulate import SimulateConfig, simulate_dataset  # noqa: E402
 from recon.run import evaluate_model  # noqa: E402
 from recon.scene import Scene  # noqa: E402
 from recon.train.trainer import Trainer  # noqa: E402
@@ -145,8 +143,7 @@ def markdown(rows: list[dict]) -> str:
     lines = ["| rung | " + " | ".join(h for _, h in KEYS) + " |", "|---|" + "---|" * len(KEYS)]
     for rung in RUNGS:
         picked = [r for r in rows if r["rung"] == rung]
-        cells = [f"{statistics.median(v):.3g}" if (v := [r[k] for r in picked if r.get(k) is not None]) else "–"
-                 for k, _ in KEYS]
+        cells = [median_cell(picked, k) for k, _ in KEYS]
         lines.append(f"| {rung} | " + " | ".join(cells) + " |")
     return "Median over scenes and seeds.\n\n" + "\n".join(lines) + "\n"
 
@@ -165,9 +162,7 @@ def main() -> int:
         if case_of(scene) is None:
             raise SystemExit(f"--scenes: {scene} is not a family variant (family-inside, ...)")
         for seed in parse_seeds(args.seeds):
-            data = args.out / "data" / f"{scene}-s{seed}"
-            if not (data / "transforms.json").exists():
-                simulate_dataset(data, SimulateConfig(variant=scene, frames=40, seed=seed))
+            data = family_data(args.out, scene, seed, frames=40)
             jobs += [{"scene": scene, "seed": seed, "data": str(data), "rung": r, "iterations": args.iterations}
                      for r in RUNGS]
     with ProcessPoolExecutor(args.jobs) as pool:
