@@ -20,6 +20,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from recon.dtg.gaussians import knn_mean_sq_dist
 from recon.dtg.time_embedding import lerp_rows
 
 
@@ -173,3 +174,16 @@ def connected_clusters(points: torch.Tensor, radius: float) -> torch.Tensor:
     rank = torch.empty_like(order)
     rank[order] = torch.arange(len(order))
     return rank[inverse]
+
+
+def body_clusters(points: torch.Tensor, min_points: int, max_bodies: int) -> list[torch.Tensor]:
+    """The rigid bodies among points (M, 3) on moving objects: connected groups (connected_clusters,
+    linked within 3x the points' median nearest-neighbour spacing) of at least `min_points`, largest
+    first, at most `max_bodies`; each as indices into points."""
+    if len(points) < 2:
+        labels = torch.zeros(len(points), dtype=torch.long)
+    else:
+        spacing = knn_mean_sq_dist(points, k=1).sqrt().median()
+        labels = connected_clusters(points, float(3 * spacing))
+    sizes = torch.bincount(labels)
+    return [(labels == k).nonzero()[:, 0] for k in range(len(sizes)) if sizes[k] >= min_points][:max_bodies]

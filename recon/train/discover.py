@@ -24,9 +24,8 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from recon.dtg.motion import connected_clusters
+from recon.dtg.motion import body_clusters
 from recon.dtg.points import colour_distance, project
-from recon.dtg.gaussians import knn_mean_sq_dist
 from recon.render import render_frame_layers
 from recon.scene import Scene
 
@@ -110,10 +109,7 @@ def group_bodies(points: torch.Tensor, on: torch.Tensor, times: list[float],
     mid = (len(times) - 1) / 2
     best = max(range(len(times)), key=lambda i: (int(counts[i]), -abs(i - mid)))
     index = near(best).nonzero()[:, 0]
-    spacing = float(knn_mean_sq_dist(points[index], k=1).sqrt().median()) if len(index) > 1 else 0.0
-    labels = connected_clusters(points[index], 3 * spacing) if len(index) > 1 else torch.zeros(1, dtype=torch.long)
-    sizes = torch.bincount(labels)
-    members = [index[labels == k] for k in range(len(sizes)) if sizes[k] >= settings.min_points]
+    members = [index[b] for b in body_clusters(points[index], settings.min_points, settings.max_bodies)]
     if not members:
         return None
-    return Bodies(times[best], members[: settings.max_bodies], [int(c) for c in counts])
+    return Bodies(times[best], members, [int(c) for c in counts])

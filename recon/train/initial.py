@@ -7,9 +7,9 @@ import numpy as np
 import torch
 
 from recon.config import TrainConfig
-from recon.dtg.gaussians import init_gaussians, knn_mean_sq_dist, trajectory_knots
+from recon.dtg.gaussians import init_gaussians, trajectory_knots
 from recon.dtg.model import DTGModel
-from recon.dtg.motion import body_radii, connected_clusters
+from recon.dtg.motion import body_clusters, body_radii
 from recon.dtg.points import changing_points, initial_temperatures, observed_time, sample_views, transient_points
 from recon.scene import Scene
 from recon.sfm import points_from_frames
@@ -145,15 +145,12 @@ def _motion_bodies(cfg: TrainConfig, scene: Scene, pts, rgb, dynamic, log):
     if len(index) < smallest:
         log("motion bases: no moving points; every Gaussian is static")
         return pts, rgb, dynamic, basis, torch.zeros(0, 3)
-    spacing = knn_mean_sq_dist(pts[index], k=1).sqrt().median()
-    labels = connected_clusters(pts[index], float(3 * spacing))
-    sizes = torch.bincount(labels)
-    usable = [k for k in range(len(sizes)) if sizes[k] >= smallest][: m.motion_bases]
-    if not usable:
+    bodies = body_clusters(pts[index], smallest, m.motion_bases)
+    if not bodies:
         log("motion bases: the moving points form no body; every Gaussian is static")
         return pts, rgb, dynamic, basis, torch.zeros(0, 3)
-    pivots = torch.stack([pts[index][labels == k].mean(0) for k in usable])
-    for b, k in enumerate(usable):
-        basis[index[labels == k]] = b + 1
-    log(f"motion bases: {len(usable)} rigid bodies from {int((basis > 0).sum())} moving points")
+    pivots = torch.stack([pts[index[members]].mean(0) for members in bodies])
+    for b, members in enumerate(bodies):
+        basis[index[members]] = b + 1
+    log(f"motion bases: {len(bodies)} rigid bodies from {int((basis > 0).sum())} moving points")
     return pts, rgb, dynamic, basis, pivots
