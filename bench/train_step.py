@@ -2,9 +2,11 @@
 
     python bench/train_step.py --out bench/results/train_step
     python bench/train_step.py --out /tmp/ts --sizes 160x120:10000 --methods dtg,dtg-mlp --steps 40
+    python bench/train_step.py --out /tmp/ts --sizes 640x480:100000,640x480:100000@0.5 --methods dtg
 
 For each (method, size W x H : N Gaussians) a simulated family scene (10 time steps) is trained
-with N initial points and no densification (N stays fixed); after --warmup iterations, --steps
+with N initial points and no densification (N stays fixed), on whole frames or with @F on random
+windows of F x each side (`recon run --crop F`); after --warmup iterations, --steps
 iterations are timed. Each component is timed *exclusively* (time inside a nested component is
 its own): the native kernels (projection / rasterization, forward and backward), the deformation
 networks' forward, the time embedding, the rigid motion bodies, SSIM's forward, the k-NN
@@ -85,7 +87,7 @@ def instrument(t: Timers) -> None:
     t.wrap(trainer, "place_bases", "window body search")
 
 
-def measure(method: str, width: int, height: int, n: int, steps: int, warmup: int, threads: int,
+def measure(method: str, width: int, height: int, n: int, crop: float, steps: int, warmup: int, threads: int,
             work: Path) -> dict:
     data = work / f"fam-{width}x{height}-{n}"
     if not (data / "transforms.json").exists():
@@ -96,6 +98,7 @@ def measure(method: str, width: int, height: int, n: int, steps: int, warmup: in
                       eval_every=10**9, max_points=n)
     cfg.densify.start = 2.0                 # never: N stays fixed
     cfg.stop.converge = False
+    cfg.crop = crop
     trainer = Trainer(cfg, scene, log=lambda _: None)
     for _ in range(warmup):
         trainer.step()
@@ -112,15 +115,16 @@ def measure(method: str, width: int, height: int, n: int, steps: int, warmup: in
     total = sum(per_step)
     parts = {k: 1000 * v / steps for k, v in sorted(timers.total.items(), key=lambda kv: -kv[1])}
     parts["other (python, loss arithmetic, indexing)"] = 1000 * total / steps - sum(parts.values())
-    return {"method": method, "size": f"{width}x{height}", "gaussians": trainer.model.num_gaussians,
+    return {"method": method, "size": f"{width}x{height}", "crop": crop, "gaussians": trainer.model.num_gaussians,
             "threads": threads, "steps": steps, "ms_per_it": 1000 * total / steps,
             "ms_per_it_median": 1000 * statistics.median(per_step), "ms": parts}
 
 
 def markdown(rows: list[dict]) -> str:
     labels = list(dict.fromkeys(k for r in rows for k in r["ms"]))
-    head = "| component (ms per iteration) | " + " | ".join(f"{r['method']} {r['size']} {r['gaussians'] // 1000}k"
-                                                         for r in rows) + " |"
+    head = "| component (ms per iteration) | " + " | ".join(
+        f"{r['method']} {r['size']}{' crop %g' % r['crop'] if r.get('crop', 1) < 1 else ''} {r['gaussians'] // 1000}k"
+        for r in rows) + " |"
     lines = [head, "|---|" + "---|" * len(rows)]
     lines.append("| **whole iteration** (mean) | " + " | ".join(f"**{r['ms_per_it']:.1f}**" for r in rows) + " |")
     for k in labels:
@@ -133,7 +137,7 @@ def main() -> int:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--methods", default="dtg,dtg-mlp")
     ap.add_argument("--sizes", default="160x120:10000,320x240:50000,640x480:100000",
-                    help="W x H : Gaussians, comma-separated")
+                    help="W x H : Gaussians [@ crop fraction], comma-separated")
     ap.add_argument("--steps", type=int, default=30)
     ap.add_argument("--warmup", type=int, default=10)
     ap.add_argument("--threads", type=int, default=2)
@@ -142,12 +146,15 @@ def main() -> int:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for size in args.sizes.split(","):
+            size, _, crop = size.partition("@")
             wh, n = size.split(":")
             w, h = (int(v) for v in wh.split("x"))
             for method in args.methods.split(","):
-                row = measure(method, w, h, int(n), args.steps, args.warmup, args.threads, Path(tmp))
+                row = measure(method, w, h, int(n), float(crop or 1), args.steps, args.warmup, args.threads,
+                              Path(tmp))
                 rows.append(row)
-                print(f"{method} {w}x{h} {row['gaussians']} Gaussians: {row['ms_per_it']:.1f} ms/it", flush=True)
+                print(f"{method} {w}x{h} crop {row['crop']:g} {row['gaussians']} Gaussians: "
+                      f"{row['ms_per_it']:.1f} ms/it", flush=True)
     (args.out / "train_step.json").write_text(json.dumps(rows, indent=1))
     (args.out / "train_step.md").write_text(markdown(rows))
     print(markdown(rows))

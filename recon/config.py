@@ -285,6 +285,9 @@ class TrainConfig:
     log_every: int = 25
     eval_every: int = 250             # held-out PSNR for the progress bar and the auto budget
     max_points: int = 20_000          # initial points kept (random subset of points3d.ply)
+    # Each stage trains on a random window of its view with sides this fraction of the view's
+    # (recon/train/crop.py); 1: whole frames. For native resolution: see docs/training.md.
+    crop: float = 1.0
     threads: int = 0                  # 0: torch's default
 
 

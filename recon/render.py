@@ -43,7 +43,8 @@ def render(model: DTGModel, modality: str, t: float, camera: Camera, progress: f
     degree = int(round(feats.shape[1] ** 0.5)) - 1 if sh_degree is None else sh_degree
     out = rasterization(g["means"], g["quats"], g["log_scales"], g["opacities"],
                         feats[:, : (degree + 1) ** 2], camera.viewmat, camera.fx, camera.fy,
-                        camera.cx, camera.cy, camera.width, camera.height, sh_degree=degree, threads=threads)
+                        camera.cx, camera.cy, camera.width, camera.height, sh_degree=degree, threads=threads,
+                        window=camera.window)
     bg = model.backgrounds[modality] if background is None else background
     image = out.image + (1 - out.alpha)[..., None] * bg
     return image, out, g

@@ -42,7 +42,7 @@ from recon.train.trainer import Trainer
 from recon.view import LiveRenderService
 from recon import viz
 from server.cli_options import add_serve_arguments, serve_from_args
-from rig.cli_format import positive_float, positive_int
+from rig.cli_format import positive_float, positive_int, unit_fraction
 
 
 def test_render(trainer: Trainer, modality: str, view) -> np.ndarray:
@@ -199,6 +199,8 @@ def config_from_args(args, overrides: dict, live: bool = False):
     if args.max_gaussians:
         cfg.densify.max_gaussians = args.max_gaussians
     cfg.densify.auto_stop = args.auto_budget
+    if args.crop:
+        cfg.crop = args.crop
     return cfg
 
 
@@ -327,6 +329,10 @@ def register(sub) -> None:
     p.add_argument("--follow", action="store_true",
                    help="train while `rig capture` is still writing SESSION; stop --after iterations after it ends")
     p.add_argument("--after", type=int, default=1500, help="with --follow: iterations after capture ends (default 1500)")
+    p.add_argument("--crop", type=unit_fraction, metavar="F",
+                   help="train each step on a random window of the view, F of its width and height "
+                        "(default 1: whole frames); 0.5 makes a 640x480 step cost about a 320x240 one "
+                        "while every pixel is still trained on (docs/training.md)")
     p.add_argument("--downscale", type=positive_int,
                    help="a session's images are prepared at 1/N size (default 4: 640x480 thermal -> 160x120; "
                         "an RGBT-Scenes folder's: 1)")

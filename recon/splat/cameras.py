@@ -38,6 +38,7 @@ class PinholeCamera:
     cy: float
     width: int
     height: int
+    window: tuple[int, int, int, int] | None = None   # (x0, y0, W, H): a crop() of a W x H view
 
     @property
     def center(self) -> torch.Tensor:
@@ -45,6 +46,17 @@ class PinholeCamera:
         r, t = self.viewmat[:3, :3], self.viewmat[:3, 3]
         return -r.T @ t
 
+    def crop(self, x0: int, y0: int, width: int, height: int) -> "PinholeCamera":
+        """The window [x0, x0 + width) x [y0, y0 + height) of this view as a camera of its own:
+        its render is that window of the full render (the principal point moves, nothing else)."""
+        if not (0 <= x0 and 0 <= y0 and 0 < width and 0 < height
+                and x0 + width <= self.width and y0 + height <= self.height):
+            raise ValueError(f"crop {width}x{height}+{x0}+{y0} is not inside a {self.width}x{self.height} view")
+        ox, oy, full_w, full_h = self.window or (0, 0, self.width, self.height)
+        return PinholeCamera(self.viewmat, self.fx, self.fy, self.cx - x0, self.cy - y0, width, height,
+                             (ox + x0, oy + y0, full_w, full_h))
+
     def args(self) -> tuple:
-        """Positional camera arguments of rasterization(), after the Gaussians."""
+        """Positional camera arguments of rasterization(), after the Gaussians (a crop's `window`
+        goes by keyword)."""
         return (self.viewmat, self.fx, self.fy, self.cx, self.cy, self.width, self.height)

@@ -91,7 +91,7 @@ def project(means, quats, log_scales, opacities, features, viewmat, intr: tuple,
     """Checked inputs -> means2d (N,2), conics (N,3), depths (N,), radii (N,), colors (N,C).
 
     One native pass (Project): colors are features as is, or SH evaluated for the direction
-    camera -> Gaussian. intr: (fx, fy, cx, cy, width, height, near_plane).
+    camera -> Gaussian. intr: (fx, fy, cx, cy, width, height, near_plane, window).
     """
     sh = None if sh_degree is None else features.contiguous()
     means2d, conics, depths, radii, colors = Project.apply(
@@ -118,6 +118,7 @@ def rasterization(
     near_plane: float = 0.01,
     threads: int | None = None,
     max_tile_pairs: int = MAX_TILE_PAIRS,
+    window: tuple[int, int, int, int] | None = None,
 ) -> RenderOutput:
     """Render Gaussians to (H,W,C); differentiable in every tensor input (and viewmat).
 
@@ -126,6 +127,9 @@ def rasterization(
     K >= (sh_degree+1)^2 when sh_degree is given (colour = max(SH(dir) + 0.5, 0), 3DGS).
     viewmat (4,4) world-to-camera, OpenCV axes. background (C,) or None (zeros).
     threads defaults to torch.get_num_threads(). All tensors float32 on the CPU.
+    window (x0, y0, full_width, full_height): the image is the window at (x0, y0) of a larger view
+    (PinholeCamera.crop); it then renders exactly that part of the larger view's render (3DGS's
+    clamp of the projection's Jacobian follows the larger view's edges). None: the whole view.
     """
     _check("means", means, (-1, 3))
     n = means.shape[0]
@@ -142,7 +146,10 @@ def rasterization(
     channels = features.shape[-1]
     if background is not None:
         _check("background", background, (channels,), (torch.float32, torch.float64))
-    intr = (float(fx), float(fy), float(cx), float(cy), width, height, float(near_plane))
+    window = (0, 0, width, height) if window is None else tuple(int(v) for v in window)
+    if len(window) != 4 or min(window[:2]) < 0 or window[0] + width > window[2] or window[1] + height > window[3]:
+        raise ValueError(f"window {window} must be (x0, y0, full_width, full_height) holding the {width}x{height} image")
+    intr = (float(fx), float(fy), float(cx), float(cy), width, height, float(near_plane), window)
     means2d, conics, depths, radii, colors = project(means, quats, log_scales, opacities, features, viewmat, intr,
                                                      sh_degree, threads)
     if means2d.requires_grad:

@@ -25,6 +25,7 @@ from recon.render import inference_masks, render
 from recon.scene import Scene
 from recon.train import timeline
 from recon.train.checkpoint import read_checkpoint, write_checkpoint
+from recon.train.crop import random_crop
 from recon.train.curriculum import TimeWindow, continue_beyond, frames_at, place_bases
 from recon.train.guard import DivergenceGuard, Event, TrainingDiverged, median_motion, nonfinite_parameter
 from recon.train.holdout import holdout_psnr, holdout_views
@@ -179,6 +180,7 @@ class Trainer:
         views = self.scene.views_at(modality, t)
         view = views[int(torch.randint(len(views), (1,), generator=self.gen))]
         target, valid = self.scene.target(view)
+        camera, target, valid = random_crop(view.camera, target, valid, self.cfg.crop, self.gen)
         mask, reg, stats = None, 0.0, {}
         if noise is not None:
             hard, soft = routing.assignment(self.model.gaussians["route_logits"], self.cfg.routing.tau, noise)
@@ -199,7 +201,7 @@ class Trainer:
             # while the window grows, the static scene learns from the (trimmed) steps outside it
             # only: at the window's few steps it would paint the moving objects where they are then
             frozen = self.model.gaussians["motion_basis"] == 0
-        image, out, g = render(self.model, modality, t, view.camera, p, sh_degree=self.active_sh_degree(modality, p),
+        image, out, g = render(self.model, modality, t, camera, p, sh_degree=self.active_sh_degree(modality, p),
                                mask=mask, rgb_geometry=rgb_geometry, background=background, frozen=frozen)
         if self.held is not None or not self.window.contains(t):
             # before discovery every step, then the steps outside the window: a trimmed loss, so
@@ -222,7 +224,11 @@ class Trainer:
         if self.model.motion is not None:
             gs = self.model.gaussians
             self.model.motion.keep_within(gs["means"].data, gs["log_scales"].data, gs["motion_basis"])
-        self.strategy.accumulate(modality, out.means2d.grad, out.radii, view.camera.width, view.camera.height)
+        # a window's loss is a mean over its pixels only: scaled back to a whole frame's, the
+        # densification criterion means the same whatever the window
+        share = camera.width * camera.height / (view.camera.width * view.camera.height)
+        self.strategy.accumulate(modality, out.means2d.grad * share, out.radii, view.camera.width,
+                                 view.camera.height)
         stats[f"loss_{modality}"] = float(rec.detach())
         return {"stats": stats, "geometry": {k: v.detach() for k, v in g["geometry_residuals"].items()}}
 

@@ -53,11 +53,14 @@ View make_view(const Camera& cam) {
   v.cy = cam.cy;
   // 3DGS clamps tx/tz to 1.3 tan(fov/2); with an off-centre principal point the two sides
   // differ (as gsplat): the image edge plus 0.3 tan(fov/2) of margin on each side.
-  const double tan_x = 0.5 * cam.width / cam.fx, tan_y = 0.5 * cam.height / cam.fy;
-  v.lim_xp = (float)((cam.width - cam.cx) / cam.fx + 0.3 * tan_x);
-  v.lim_xn = (float)(cam.cx / cam.fx + 0.3 * tan_x);
-  v.lim_yp = (float)((cam.height - cam.cy) / cam.fy + 0.3 * tan_y);
-  v.lim_yn = (float)(cam.cy / cam.fy + 0.3 * tan_y);
+  // Of the full view when the image is a window of it.
+  const double w = cam.full_width, h = cam.full_height;
+  const double cx = (double)cam.cx + cam.win_x0, cy = (double)cam.cy + cam.win_y0;
+  const double tan_x = 0.5 * w / cam.fx, tan_y = 0.5 * h / cam.fy;
+  v.lim_xp = (float)((w - cx) / cam.fx + 0.3 * tan_x);
+  v.lim_xn = (float)(cx / cam.fx + 0.3 * tan_x);
+  v.lim_yp = (float)((h - cy) / cam.fy + 0.3 * tan_y);
+  v.lim_yn = (float)(cy / cam.fy + 0.3 * tan_y);
   return v;
 }
 

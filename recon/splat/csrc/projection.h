@@ -10,6 +10,10 @@ struct Camera {
   float fx, fy, cx, cy;
   int width, height;
   float near_plane;
+  // The image is the window at (win_x0, win_y0) of a full_width x full_height view (the whole
+  // view: 0, 0, width, height). The Jacobian's clamp follows the full view's edges, so a window
+  // renders exactly that part of the full render.
+  int win_x0 = 0, win_y0 = 0, full_width = 0, full_height = 0;
 };
 
 // Optional SH colour: sh (N,K,C) with K >= (degree+1)^2, evaluated for the direction camera ->

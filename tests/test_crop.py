@@ -1,0 +1,72 @@
+"""Training on random windows of the views (recon/train/crop.py): a window's camera renders
+exactly that window of the whole view, gradients included, and training through windows learns."""
+import pytest
+import torch
+
+from recon.splat import rasterization
+from recon.train.crop import random_crop, window
+from recon.train.trainer import Trainer
+from tests.splat_scenes import default_camera, random_gaussians
+from tests.test_train import small_cfg, tiny
+
+
+def render(g, camera):
+    return rasterization(g.means, g.quats, g.log_scales, g.opacities, g.features, *camera.args(),
+                         window=camera.window).image
+
+
+@pytest.mark.parametrize("x0,y0,w,h", [(0, 0, 64, 48), (5, 3, 37, 29), (27, 19, 37, 29), (17, 0, 16, 48)])
+def test_a_window_renders_that_window_of_the_view_and_has_its_gradients(x0, y0, w, h):
+    cam = default_camera()
+    g = random_gaussians(300, 3, seed=11).requires_grad_()
+    weights = torch.rand(h, w, 3, generator=torch.Generator().manual_seed(1))
+    full = render(g, cam)[y0:y0 + h, x0:x0 + w]
+    grads_full = torch.autograd.grad((full * weights).sum(), g.tensors())
+    part = render(g, cam.crop(x0, y0, w, h))
+    assert part.shape == (h, w, 3)
+    assert torch.allclose(part, full, atol=1e-5), (part - full).abs().max()
+    grads_part = torch.autograd.grad((part * weights).sum(), g.tensors())
+    for a, b in zip(grads_part, grads_full):
+        assert torch.allclose(a, b, atol=1e-4, rtol=1e-3), (a - b).abs().max()
+
+
+def test_a_window_outside_the_view_is_refused():
+    with pytest.raises(ValueError, match="not inside a 64x48 view"):
+        default_camera().crop(40, 0, 32, 24)
+
+
+def test_windows_cover_every_pixel_and_keep_target_and_mask_aligned():
+    gen = torch.Generator().manual_seed(0)
+    seen = torch.zeros(36, 48)
+    draws = 2000
+    for _ in range(draws):
+        x0, y0, w, h = window(48, 36, 0.5, gen)
+        assert (w, h) == (24, 18) and 0 <= x0 <= 24 and 0 <= y0 <= 18
+        seen[y0:y0 + h, x0:x0 + w] += 1
+    # a corner is in a window when both centre coordinates fall in the outer quarter: 1/16
+    # of the draws (a uniform top-left corner: 1/475)
+    assert seen[0, 0] > draws / 16 * 0.7 and seen[-1, -1] > draws / 16 * 0.7, (seen[0, 0], seen[-1, -1])
+    assert abs(seen.mean() / draws - 0.25) < 1e-6
+    cam = default_camera(48, 36)
+    target = torch.arange(36 * 48, dtype=torch.float32).view(36, 48)
+    valid = target % 3 == 0
+    crop_cam, t, v = random_crop(cam, target, valid, 0.5, gen)
+    x0, y0 = round(cam.cx - crop_cam.cx), round(cam.cy - crop_cam.cy)
+    assert torch.equal(t, target[y0:y0 + 18, x0:x0 + 24]) and torch.equal(v, valid[y0:y0 + 18, x0:x0 + 24])
+    whole = random_crop(cam, target, None, 1.0, gen)
+    assert whole[0] is cam and whole[1] is target and whole[2] is None
+
+
+def test_training_on_half_windows_raises_heldout_psnr(tmp_path_factory):
+    scene = tiny(tmp_path_factory)
+    cfg = small_cfg(iterations=200)
+    cfg.crop = 0.5
+    tr = Trainer(cfg, scene, log=lambda _: None)
+    before = tr.holdout_psnr()
+    while not tr.done():
+        tr.step()
+    after = tr.holdout_psnr()
+    # whole test frames, though each step saw a quarter (24x18) of a training frame: measured
+    # +0.7..1.4 dB RGB, +2.7..4.4 dB thermal over seeds 0-3 (whole frames, seed 0: +2.1, +7.0)
+    assert after["rgb"] > before["rgb"] + 0.4, (before, after)
+    assert after["thermal"] > before["thermal"] + 1.8, (before, after)
