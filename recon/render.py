@@ -15,6 +15,7 @@ from recon.train.checkpoint import read_checkpoint
 from recon.dtg.model import DTGModel
 from recon.scene import Camera
 from recon.splat import rasterization
+from recon.splat.rasterization import NEAR_PLANE, project
 from recon.data import viewmat_from_c2w_opengl
 
 
@@ -26,6 +27,21 @@ def inference_masks(model: DTGModel) -> dict[str, torch.Tensor] | None:
     return routing.masks(torch.nn.functional.one_hot(roles, 3).float())
 
 
+def in_view(camera: Camera, threads: int | None = None):
+    """geometry {means (N,3), quats, log_scales} -> (R,) indices of the Gaussians the rasterizer
+    may draw in this camera (its projection's culling at full opacity, the widest footprint: a
+    superset of what any opacity draws)."""
+    def rows(geo: dict[str, torch.Tensor]) -> torch.Tensor:
+        means = geo["means"]
+        ones = torch.ones(means.shape[0])
+        radii = project(means, geo["quats"], geo["log_scales"], ones, ones[:, None], camera.viewmat.float(),
+                        (float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy), camera.width,
+                         camera.height, NEAR_PLANE, camera.window or (0, 0, camera.width, camera.height)),
+                        None, torch.get_num_threads() if threads is None else threads)[3]
+        return torch.nonzero(radii > 0).view(-1)
+    return rows
+
+
 def render(model: DTGModel, modality: str, t: float, camera: Camera, progress: float = 1.0,
            sh_degree: int | None = None, mask: torch.Tensor | None = None,
            rgb_geometry: dict[str, torch.Tensor] | None = None, background: torch.Tensor | None = None,
@@ -35,7 +51,8 @@ def render(model: DTGModel, modality: str, t: float, camera: Camera, progress: f
     sh_degree: active SH degree (None: all the model has); background (C,): None = the learned one;
     threads: rasterizer threads (None: torch's); frozen (N,) bool: Gaussians this render may not
     train (their parameters are seen detached)."""
-    g = model.render_inputs(modality, t, progress, mask=mask, rgb_geometry=rgb_geometry)
+    g = model.render_inputs(modality, t, progress, mask=mask, rgb_geometry=rgb_geometry,
+                            in_view=in_view(camera, threads))
     if frozen is not None:
         g = {**g, **{k: torch.where(frozen.view(-1, *[1] * (g[k].dim() - 1)), g[k].detach(), g[k])
                      for k in ("means", "quats", "log_scales", "opacities", "features")}}

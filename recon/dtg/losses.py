@@ -34,7 +34,11 @@ def trimmed_l1(pred: torch.Tensor, gt: torch.Tensor, valid: torch.Tensor | None,
     err = err[valid] if valid is not None else err.flatten()
     if err.numel() == 0:
         return pred.sum() * 0
-    limit = torch.quantile(err.detach(), keep) if err.numel() > 1 else err.detach().max()
+    # the order statistic below torch.quantile's interpolated value: the same pixels are kept
+    # (nothing lies strictly between two neighbouring order statistics), by selection instead of
+    # a sort (0.7 against 5.3 ms for 320x240)
+    k = int(keep * (err.numel() - 1)) + 1
+    limit = err.detach().kthvalue(min(k, err.numel())).values
     return err[err <= limit].mean()
 
 

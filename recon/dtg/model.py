@@ -74,13 +74,24 @@ class DTGModel(nn.Module):
     def num_gaussians(self) -> int:
         return self.gaussians["means"].shape[0]
 
-    def stage_residuals(self, stage: str, t: float, progress: float) -> dict[str, torch.Tensor]:
-        """Residuals of one deformation stage ('shared', 'rgb' or 'thermal') at time t."""
+    def stage_residuals(self, stage: str, t: float, progress: float,
+                        rows: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """Residuals (N, size) of one deformation stage ('shared', 'rgb' or 'thermal') at time t.
+        rows (R,): only these Gaussians' are computed, the others' are zero."""
         if stage not in self.deformers:
             return {}
         key = "embedding" if stage == "shared" else f"embedding_{stage}"
         e_t = self.time_embedding(t, progress)
-        return self.deformers[stage](e_t, self.gaussians[key])
+        if rows is None:
+            return self.deformers[stage](e_t, self.gaussians[key])
+        part = self.deformers[stage](e_t, self.gaussians[key].index_select(0, rows))
+        n = self.num_gaussians
+        return {k: v.new_zeros(n, v.shape[1]).index_copy(0, rows, v) for k, v in part.items()}
+
+    def moves_geometry(self, stage: str) -> bool:
+        """Whether a stage's network predicts geometry residuals (then every Gaussian's are needed
+        to know where it is)."""
+        return stage in self.deformers and any(k in self.deformers[stage].outputs for k in GEOMETRY)
 
     def motion_stage(self) -> str | None:
         """The deformation stage whose geometry every modality's render builds on ('shared',
@@ -124,11 +135,15 @@ class DTGModel(nn.Module):
 
     def render_inputs(self, modality: str, t: float, progress: float = 1.0,
                       mask: torch.Tensor | None = None,
-                      rgb_geometry: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
+                      rgb_geometry: dict[str, torch.Tensor] | None = None,
+                      in_view=None) -> dict[str, torch.Tensor]:
         """Gaussians of one modality at time t.
 
         mask: (N,) routing mask for this modality or None. rgb_geometry: first-stage geometry
         residuals to reuse for the thermal stage (the RGB stage of the same iteration computed them).
+        in_view: geometry {means, quats, log_scales} -> (R,) indices of the Gaussians a render can
+        show, or None. When this modality's network changes only opacity and features, it runs on
+        those rows alone (the others get no residual: they are not drawn).
         Returns means (N,3), quats (N,4), log_scales (N,3), opacities (N,), features (N,K,C), and
         ``geometry_residuals`` (the residuals this call applied, for reuse).
         """
@@ -142,7 +157,8 @@ class DTGModel(nn.Module):
         applied: dict[str, torch.Tensor] = {}
         if cfg.deformation != "none":
             stage = "shared" if cfg.deformation == "shared" else modality
-            res = self.stage_residuals(stage, t, progress)
+            later = in_view is not None and not self.moves_geometry(stage)    # after the geometry
+            res = {} if later else self.stage_residuals(stage, t, progress)
             res = {**{k: torch.zeros_like(geo[k]) for k in GEOMETRY}, **res}
             applied = {k: res[k] for k in GEOMETRY}
             if cfg.deformation == "progressive" and modality == "thermal" and "rgb" in cfg.modalities:
@@ -163,6 +179,8 @@ class DTGModel(nn.Module):
             if self.motion is not None:
                 geo["means"], geo["quats"] = apply_motion(geo["means"], geo["quats"], g["motion_basis"],
                                                           self.dynamic_gate(), self.motion, t)
+            if later:
+                res = self.stage_residuals(stage, t, progress, rows=in_view({k: v.detach() for k, v in geo.items()}))
             if f"opacity_{modality}" in res:
                 opacity_logit = opacity_logit + res[f"opacity_{modality}"][:, 0]
             if f"features_{modality}" in res:

@@ -24,7 +24,7 @@ from recon.splat._functions import Project, Rasterize
 
 DEPTH_EPS = 1e-10
 MAX_TILE_PAIRS = 1 << 28  # 1 GiB of tile lists; beyond this a clear MemoryError
-
+NEAR_PLANE = 0.01         # camera z below which a Gaussian is culled
 
 @dataclass
 class RenderOutput:
@@ -115,7 +115,7 @@ def rasterization(
     height: int,
     background: torch.Tensor | None = None,
     sh_degree: int | None = None,
-    near_plane: float = 0.01,
+    near_plane: float = NEAR_PLANE,
     threads: int | None = None,
     max_tile_pairs: int = MAX_TILE_PAIRS,
     window: tuple[int, int, int, int] | None = None,
