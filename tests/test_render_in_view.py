@@ -1,0 +1,35 @@
+"""The thermal network runs on the Gaussians in view only (recon.render.in_view): the render is
+the same bits as running it on every Gaussian, and so are the gradients it gives."""
+import torch
+
+from recon import render as rendering
+from recon.train.trainer import Trainer
+from tests.test_train import small_cfg, tiny
+
+
+def test_network_on_rows_in_view_renders_and_trains_as_on_all(tmp_path_factory, monkeypatch):
+    scene = tiny(tmp_path_factory, "family-inside")
+    tr = Trainer(small_cfg(iterations=100), scene, log=lambda _: None)
+    for _ in range(40):
+        tr.step()
+    model = tr.model
+    assert not model.moves_geometry("thermal") and "thermal" in model.deformers
+    view = scene.train["thermal"][0]
+    for camera in (view.camera, view.camera.crop(10, 6, 24, 18)):
+        grads = []
+        for narrow in (True, False):
+            g = model.gaussians["embedding_thermal"]
+            g.grad = None
+            if not narrow:
+                monkeypatch.setattr(rendering, "in_view", lambda camera, threads=None: None)
+            image, _, geo = rendering.render(model, "thermal", view.time, camera)
+            monkeypatch.undo()
+            (image * torch.linspace(0, 1, image.numel()).view_as(image)).sum().backward()
+            grads.append((image.detach(), g.grad.clone()))
+        (a, ga), (b, gb) = grads
+        assert torch.equal(a, b)
+        assert torch.allclose(ga, gb, atol=1e-7), (ga - gb).abs().max()
+        rows = rendering.in_view(camera)({k: geo[k].detach() for k in ("means", "quats", "log_scales")})
+        assert 0 < rows.numel() < model.num_gaussians      # some Gaussians are out of view
+        touched = ga.abs().sum(1).nonzero().view(-1)
+        assert set(touched.tolist()) <= set(rows.tolist())
