@@ -3,6 +3,8 @@
     python bench/table.py --out bench/results/family --scenes family-inside,family-outside \\
         --seeds 100-107 --methods dtg,ed3dgs-thermal,ed3dgs-rgb --minutes 5 --jobs 2
     python bench/table.py --out bench/results/table --scenes default,dark,fast --minutes 3
+    python bench/table.py --out bench/results/resolution --scenes default --size 640x480 \
+        --train-sizes 160x120,640x480 --methods dtg,dtg-crop --variant 'dtg-crop=dtg:{"crop": 0.5}' --minutes 15
 
 A *scene* is a simulator variant (`recon simulate --variant`); with --seeds every variant is
 simulated once per seed (for `family-*` variants each seed is a new scene: rig/sim/family.py).
@@ -10,7 +12,10 @@ Each (scene, seed, method) trains for the same wall-clock budget (training time 
 pauses the clock; --converge: `recon run`'s default instead, until held-out error converged
 within the --minutes cap), evaluates all test views at regular checkpoints straight from the
 model (same encodings and metric code as `recon eval`, with per-region errors: moving, hot,
-moving-hot, static), then finishes the run as `recon run` does. Writes, in --out:
+moving-hot, static), then finishes the run as `recon run` does. --train-sizes adds a resolution
+axis: the same scene is also simulated at each training size, every method trains at each, and
+every run is graded on the --size test views (a model renders at any resolution: one trained at
+160x120 is rendered at 640x480, not upsampled); methods are then named METHOD@WxH. Writes, in --out:
 
   table.md / table.json      per scene and method: median and worst over seeds of PSNR per
                              modality, thermal MAE (K) whole-image and per region, RGB PSNR on
@@ -73,9 +78,10 @@ def parse_variant(text: str) -> tuple[str, tuple[str, dict]]:
     return name, (base, json.loads(overrides or "{}"))
 
 
-def train_with_curve(cfg, scene: Scene, run_dir: Path, checkpoints: int, log) -> tuple[Trainer, list[dict]]:
+def train_with_curve(cfg, scene: Scene, run_dir: Path, checkpoints: int, log,
+                     test_scene: Scene | None = None) -> tuple[Trainer, list[dict]]:
     """Train through Trainer.tick (schedule, divergence guard, held-out convergence), grading the
-    test views every 1/checkpoints of the wall-clock budget."""
+    test views (of test_scene, default scene's) every 1/checkpoints of the wall-clock budget."""
     trainer = Trainer(cfg, scene, run_dir, log=log)
     budget_s = 60.0 * (cfg.minutes or DEFAULT_MINUTES)
     curve, next_eval = [], budget_s / checkpoints
@@ -83,7 +89,7 @@ def train_with_curve(cfg, scene: Scene, run_dir: Path, checkpoints: int, log) ->
     while not trainer.done():
         trainer.tick()
         if trainer.elapsed >= next_eval or trainer.done():
-            metrics = evaluate_model(trainer, every=2)
+            metrics = evaluate_model(trainer, every=2, scene=test_scene)
             curve.append({"seconds": round(trainer.elapsed, 2), "iteration": trainer.iteration,
                           "gaussians": trainer.model.num_gaussians,
                           **{k: (round(v, 4) if v is not None else None) for k, v in flatten(metrics).items()}})
@@ -113,6 +119,11 @@ def peak_rss_mb() -> float | None:
     return None
 
 
+def data_folder(out: Path, name: str, size: str, graded_size: str) -> Path:
+    """Where scene `name` simulated at `size` lives (at the graded size: its plain name)."""
+    return out / "data" / (name if size == graded_size else f"{name}-{size}")
+
+
 def table_work(job: Job, run_dir: Path, resume: bool) -> int:
     """One grid point as a batch job's work (recon.batch.execute): train with the evaluation
     curve, grade and finish into run_dir. Everything it needs is in job.spec; an interrupted
@@ -126,10 +137,12 @@ def table_work(job: Job, run_dir: Path, resume: bool) -> int:
     cfg.stop.converge = spec["converge"]
     apply_overrides(cfg, overrides)
     scene = Scene(load_dataset(Path(job.input)))
+    graded = Path(spec.get("graded_on") or job.input)
+    test_scene = Scene(load_dataset(graded)) if graded != Path(job.input) else None
     t0 = time.perf_counter()
     reset_peak_rss()
-    trainer, curve = train_with_curve(cfg, scene, run_dir, spec["checkpoints"], log)
-    summary = finish(trainer, run_dir, Path(job.input))
+    trainer, curve = train_with_curve(cfg, scene, run_dir, spec["checkpoints"], log, test_scene)
+    summary = finish(trainer, run_dir, graded, test_scene)
     summary["peak_rss_mb"] = peak_rss_mb()
     (run_dir / "metrics.json").write_text(json.dumps(summary, indent=2))
     (run_dir / "curve.json").write_text(json.dumps(curve, indent=1))
@@ -202,14 +215,16 @@ def main() -> int:
     ap.add_argument("--converge", action="store_true",
                     help="recon run's default: until held-out error converged, --minutes as the cap")
     ap.add_argument("--frames", type=int, default=40, help="time steps per scene (default 40)")
-    ap.add_argument("--size", default="160x120")
+    ap.add_argument("--size", default="160x120", help="the test views' size, W x H (default 160x120)")
+    ap.add_argument("--train-sizes", help="sizes to train at, comma-separated (default: --size); each run is "
+                                          "graded at --size")
     ap.add_argument("--checkpoints", type=int, default=8, help="evaluations per run (default 8)")
     ap.add_argument("--jobs", type=int, default=1, help="runs at once on this machine (default 1)")
     ap.add_argument("--address", help="a Ray cluster to run the grid on (default: a local Ray runtime)")
     ap.add_argument("--threads", type=int, default=None, help="threads per run (default: all; 1 with --jobs > 1)")
     args = ap.parse_args()
     threads = args.threads or (1 if args.jobs > 1 else os.cpu_count())
-    w, h = (int(v) for v in args.size.split("x"))
+    sizes = args.train_sizes.split(",") if args.train_sizes else [args.size]
     scenes, methods, seeds = args.scenes.split(","), args.methods.split(","), parse_seeds(args.seeds)
     tuned = set(parse_seeds(args.tuned_seeds))
     variants = dict(parse_variant(v) for v in args.variant)
@@ -217,18 +232,28 @@ def main() -> int:
     if unknown:
         raise SystemExit(f"unknown methods {unknown}: use {', '.join(METHODS)} or define them with --variant")
     args.out.mkdir(parents=True, exist_ok=True)
-    jobs = []
+    jobs, labels = [], {}
     for scene in scenes:
         for seed in seeds:
             name = f"{scene}-s{seed}"
-            data = args.out / "data" / name
-            if not (data / "transforms.json").exists():
-                print(f"simulating {name} ({args.frames} steps, {args.size})", flush=True)
-                simulate_dataset(data, SimulateConfig(variant=scene, frames=args.frames, width=w, height=h, seed=seed))
-            jobs += [Job(f"{name}/{m}", str(data), m, seed, threads,
-                         {"scene": scene, "seed": seed, "minutes": args.minutes, "converge": args.converge,
-                          "checkpoints": args.checkpoints, "variants": variants})
-                     for m in methods]
+            graded = data_folder(args.out, name, args.size, args.size)
+            for size in dict.fromkeys([args.size, *sizes]):
+                w, h = (int(v) for v in size.split("x"))
+                data = data_folder(args.out, name, size, args.size)
+                if not (data / "transforms.json").exists():
+                    print(f"simulating {data.name} ({args.frames} steps, {size})", flush=True)
+                    simulate_dataset(data, SimulateConfig(variant=scene, frames=args.frames, width=w, height=h,
+                                                          seed=seed))
+            for size in sizes:
+                data = data_folder(args.out, name, size, args.size)
+                for m in methods:
+                    label = m if sizes == [args.size] else f"{m}@{size}"
+                    job = Job(f"{name}/{label}", str(data), m, seed, threads,
+                              {"scene": scene, "seed": seed, "minutes": args.minutes, "converge": args.converge,
+                               "checkpoints": args.checkpoints, "variants": variants, "graded_on": str(graded)})
+                    labels[job.name] = label
+                    jobs.append(job)
+    methods = list(dict.fromkeys(labels.values()))
     # the grid runs as a batch (recon batch's mechanism: Ray tasks, finished runs skipped,
     # RUNS/batch.json for the status page); --jobs caps the local runtime's CPUs
     runs = args.out / "runs"
@@ -237,7 +262,7 @@ def main() -> int:
     failed = [r for r in rows if r["state"] == "failed"]
     if failed:
         print("failed: " + "; ".join(f"{r['name']}: {r['error']}" for r in failed))
-    results = [{"scene": j.spec["scene"], "seed": j.seed, "method": j.method,
+    results = [{"scene": j.spec["scene"], "seed": j.seed, "method": labels[j.name],
                 "summary": read_json(j.run_dir(runs) / "metrics.json"),
                 "curve": json.loads((j.run_dir(runs) / "curve.json").read_text())}
                for j, r in zip(jobs, rows) if r["state"] != "failed"]
@@ -254,7 +279,8 @@ def main() -> int:
             groups = {m: g for m, g in groups.items() if g["seeds"]}
             seeds_text = ",".join(str(s) for s in sorted({r["seed"] for r in picked}))
             parts.append(markdown(groups, f"{scene}, seeds {seeds_text} ({label}): median (worst) over seeds; "
-                                          f"{budget} per run, {args.size}, {args.frames} time steps, test = rig 1"))
+                                          f"{budget} per run, trained at {args.train_sizes or args.size}, graded at "
+                                          f"{args.size}, {args.frames} time steps, test = rig 1"))
             table["aggregate"][f"{scene} {label}"] = groups
     table["per_run"] = [{"scene": r["scene"], "seed": r["seed"], "method": r["method"], **r["row"]} for r in rows]
     (args.out / "table.md").write_text("\n\n".join(parts) + "\n")

@@ -286,8 +286,11 @@ class TrainConfig:
     eval_every: int = 250             # held-out PSNR for the progress bar and the auto budget
     max_points: int = 20_000          # initial points kept (random subset of points3d.ply)
     # Each stage trains on a random window of its view with sides this fraction of the view's
-    # (recon/train/crop.py); 1: whole frames. For native resolution: see docs/training.md.
+    # (recon/train/resolution.py); 1: whole frames. For native resolution: see docs/training.md.
     crop: float = 1.0
+    # ((from progress p, downscale factor), ...): training views are averaged over factor x
+    # factor blocks from p on (coarse to fine; resolution.coarse_to_fine builds one). Full size: 1.
+    resolution: tuple = ((0.0, 1),)
     threads: int = 0                  # 0: torch's default
 
 
@@ -368,4 +371,6 @@ def config_from_dict(d: dict) -> TrainConfig:
         fields = {f.name for f in dataclasses.fields(cls)}
         vals = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.get(key, {}).items() if k in fields}
         d[key] = cls(**vals)
+    if "resolution" in d:         # JSON lists back to ((p, factor), ...)
+        d["resolution"] = tuple((float(p), int(f)) for p, f in d["resolution"])
     return TrainConfig(**d)

@@ -38,6 +38,7 @@ from recon.prepare.rgbt import is_rgbt_folder
 from recon.render import render_frame
 from recon.scene import Scene
 from recon.train.guard import TrainingDiverged
+from recon.train.resolution import coarse_to_fine
 from recon.train.trainer import Trainer
 from recon.view import LiveRenderService
 from recon import viz
@@ -45,34 +46,39 @@ from server.cli_options import add_serve_arguments, serve_from_args
 from rig.cli_format import positive_float, positive_int, unit_fraction
 
 
-def test_render(trainer: Trainer, modality: str, view) -> np.ndarray:
-    """A test view rendered with the ground truth's encoding (uint8 RGB or uint16 counts)."""
+def test_render(trainer: Trainer, modality: str, view, scene: Scene | None = None) -> np.ndarray:
+    """A test view of `scene` (default the training scene) rendered with the ground truth's
+    encoding (uint8 RGB or uint16 counts)."""
     image = render_frame(trainer.model, modality, view.time, view.camera)
+    # kelvin by the temperature range the model was trained in; encoded as the graded data is
     image = image.clamp(0, 1) if modality == "rgb" else trainer.scene.kelvin(image[..., 0])
-    return encode_render(image.numpy(), modality, trainer.scene.dataset.thermal_scale_k)
+    return encode_render(image.numpy(), modality, (scene or trainer.scene).dataset.thermal_scale_k)
 
 
-def evaluate_model(trainer: Trainer, every: int = 1) -> dict:
+def evaluate_model(trainer: Trainer, every: int = 1, scene: Scene | None = None) -> dict:
     """Test metrics straight from the model (every `every`-th test view), with the same encodings
     and metric code as `recon eval` on written renders, without the disk:
-    {modality: {metric: mean over frames}, "regions": {modality: {region: pooled metrics}}}."""
-    out, pool, ds = {}, RegionPool(), trainer.scene.dataset
-    views = {m: trainer.scene.test[m][::every] for m in trainer.cfg.model.modalities}
+    {modality: {metric: mean over frames}, "regions": {modality: {region: pooled metrics}}}.
+    scene: the test views to grade (default the training scene's; e.g. the same capture at a
+    higher resolution than trained at)."""
+    scene = scene or trainer.scene
+    out, pool, ds = {}, RegionPool(), scene.dataset
+    views = {m: scene.test[m][::every] for m in trainer.cfg.model.modalities}
     moving = moving_masks(ds, [v.frame for vs in views.values() for v in vs])
     for m, vs in views.items():
-        rows = [frame_metrics(ds, v.frame, test_render(trainer, m, v), None, pool, moving[v.frame.file_path])
-                for v in vs]
+        rows = [frame_metrics(ds, v.frame, test_render(trainer, m, v, scene), None, pool,
+                              moving[v.frame.file_path]) for v in vs]
         if rows:
             out[m] = {k: float(np.mean([r[k] for r in rows])) for k in rows[0] if k != "regions"}
     out["regions"] = pool.result()
     return out
 
 
-def render_test_views(trainer: Trainer, run_dir: Path) -> int:
+def render_test_views(trainer: Trainer, run_dir: Path, scene: Scene | None = None) -> int:
     n = 0
     for m in trainer.cfg.model.modalities:
-        for view in trainer.scene.test[m]:
-            write_render_pixels(run_dir, view.frame, test_render(trainer, m, view))
+        for view in (scene or trainer.scene).test[m]:
+            write_render_pixels(run_dir, view.frame, test_render(trainer, m, view, scene))
             n += 1
     return n
 
@@ -118,12 +124,13 @@ def write_animation(trainer: Trainer, path: Path, frames: int = 24) -> None:
     images[0].save(path, save_all=True, append_images=images[1:], duration=120, loop=0)
 
 
-def finish(trainer: Trainer, run_dir: Path, dataset_dir: Path) -> dict:
-    """Render, grade, draw and export a trained run. Returns the metrics summary."""
+def finish(trainer: Trainer, run_dir: Path, dataset_dir: Path, test_scene: Scene | None = None) -> dict:
+    """Render, grade, draw and export a trained run. Returns the metrics summary. test_scene: the
+    test views to render and grade, of the dataset at dataset_dir (default: the training scene)."""
     t0 = time.perf_counter()
     (run_dir / "config.json").write_text(json.dumps(config_to_dict(trainer.cfg), indent=2))
-    (run_dir / "scene.json").write_text(json.dumps(scene_facts(trainer.scene, dataset_dir), indent=2))
-    n = render_test_views(trainer, run_dir)
+    (run_dir / "scene.json").write_text(json.dumps(scene_facts(test_scene or trainer.scene, dataset_dir), indent=2))
+    n = render_test_views(trainer, run_dir, test_scene)
     report = evaluate_run(run_dir, dataset_dir, modalities=trainer.cfg.model.modalities) if n else {}
     if report:
         write_results(report, run_dir / "eval")
@@ -201,6 +208,8 @@ def config_from_args(args, overrides: dict, live: bool = False):
     cfg.densify.auto_stop = args.auto_budget
     if args.crop:
         cfg.crop = args.crop
+    if args.coarse_to_fine:
+        cfg.resolution = coarse_to_fine(args.coarse_to_fine, cfg.stop.hold_at)
     return cfg
 
 
@@ -329,6 +338,10 @@ def register(sub) -> None:
     p.add_argument("--follow", action="store_true",
                    help="train while `rig capture` is still writing SESSION; stop --after iterations after it ends")
     p.add_argument("--after", type=int, default=1500, help="with --follow: iterations after capture ends (default 1500)")
+    p.add_argument("--coarse-to-fine", type=positive_int, metavar="N",
+                   help="train on views averaged to 1/2^N of their size until held-out error has converged, "
+                        "then double the size N times up to full size for the rest of the run (default: full "
+                        "size throughout); with --crop for native 640x480 (docs/training.md)")
     p.add_argument("--crop", type=unit_fraction, metavar="F",
                    help="train each step on a random window of the view, F of its width and height "
                         "(default 1: whole frames); 0.5 makes a 640x480 step cost about a 320x240 one "

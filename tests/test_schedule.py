@@ -68,3 +68,32 @@ def test_heldout_time_steps_are_kept_out_until_the_hold_ends(tmp_path):
     while not tr.done():
         tr.tick()
     assert tr.stop_reason() == tr.schedule.stop_reason and tr.iteration >= 90
+
+
+def cap_run(schedule: Schedule, seconds_per_it) -> tuple[float, float]:
+    """Drive a capped schedule that never converges; seconds_per_it(iteration, p). -> (seconds at
+    the end, p before the last iteration)."""
+    it, elapsed, before = 0, 0.0, 0.0
+    while schedule.p < 1.0:
+        it += 1
+        elapsed += seconds_per_it(it, schedule.p)
+        before = schedule.p
+        schedule.advance(it, elapsed)
+    return elapsed, before
+
+
+def test_a_slow_start_does_not_end_a_capped_run_early():
+    # the first 300 iterations 10x slower (as while a time window grows): the average pace since the
+    # start overestimated the rest and ended this run at 558 of 600 s
+    end, _ = cap_run(Schedule(3000, minutes=10, converge=True), lambda it, p: 0.5 if it <= 300 else 0.05)
+    assert 595 <= end <= 600.1, end
+
+
+def test_iterations_that_get_costlier_still_finish_the_schedule_at_the_cap():
+    # coarse to fine: iterations after the hold cost 4x; without the cost model the schedule was
+    # cut from p = 0.94 to 1 at the cap (the full-size phase lost); with it p arrives smoothly
+    cost = lambda p: 1.0 if p < 1 / 3 else 4.0      # noqa: E731
+    schedule = Schedule(3000, minutes=10, converge=True)
+    schedule.cost = cost
+    end, before = cap_run(schedule, lambda it, p: 0.05 * cost(p))
+    assert 595 <= end <= 600.1 and before > 0.995, (end, before)

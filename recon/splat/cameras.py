@@ -56,6 +56,15 @@ class PinholeCamera:
         return PinholeCamera(self.viewmat, self.fx, self.fy, self.cx - x0, self.cy - y0, width, height,
                              (ox + x0, oy + y0, full_w, full_h))
 
+    def downscaled(self, factor: int) -> "PinholeCamera":
+        """This view at 1/factor of each side (pixel i covers pixels [i factor, (i+1) factor) of the
+        original; sizes rounded down)."""
+        if self.window is not None:
+            raise ValueError("downscale a whole view, then crop it")
+        f = float(factor)
+        return PinholeCamera(self.viewmat, self.fx / f, self.fy / f, self.cx / f, self.cy / f,
+                             self.width // factor, self.height // factor)
+
     def args(self) -> tuple:
         """Positional camera arguments of rasterization(), after the Gaussians (a crop's `window`
         goes by keyword)."""

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Callable
 
 
 @dataclass
@@ -39,6 +40,8 @@ class Schedule:
     since_best: int = 0
     evals: int = 0
     history: list = field(default_factory=list)
+    marks: list = field(default_factory=list)     # (iteration, elapsed s) every 50 iterations: the recent pace
+    cost: Callable[[float], float] | None = None  # relative cost of an iteration at progress p (None: constant)
 
     # ------------------------------------------------------------------ progress
     def progress(self, iteration: int, elapsed_s: float) -> float:
@@ -61,15 +64,29 @@ class Schedule:
             self.p = min(self.p + step, 1.0)
         if self.minutes and iteration > 0:
             left_s = 60.0 * self.minutes - elapsed_s
-            pace = elapsed_s / iteration                          # seconds per iteration so far
-            rest = (1.0 - self.p) / step                          # iterations the schedule still needs
-            if self.holding and not self.released and left_s < rest * pace:
+            need = self.seconds_to_finish(iteration, elapsed_s)
+            if self.holding and not self.released and left_s < need:
                 self.release(f"time cap of {self.minutes:g} min: the hold ended to finish the schedule")
-            if self.released and left_s > 0 and rest * pace > left_s:
-                self.p = min(self.p + (1.0 - self.p) * pace / left_s, 1.0)   # end at the cap
+            if self.released and left_s > 0 and need > left_s:
+                self.p = min(self.p + step * need / left_s, 1.0)   # end at the cap
             if left_s <= 0:
                 self.p = 1.0
                 self.stop_reason = self.stop_reason or f"time cap of {self.minutes:g} min reached"
+
+    def seconds_to_finish(self, iteration: int, elapsed_s: float) -> float:
+        """Wall-clock seconds the rest of the schedule (1 - p) needs at one nominal step per
+        iteration: the recent pace (over the last 250 iterations: a run's first iterations are
+        slower, e.g. while its time window grows) times the iterations left, each weighted by
+        cost(p) / cost(now) where the cost per iteration changes along the schedule (coarse to fine)."""
+        if iteration % 50 == 0 and (not self.marks or self.marks[-1][0] < iteration):
+            self.marks = (self.marks + [(iteration, elapsed_s)])[-6:]
+        i0, e0 = self.marks[0] if self.marks and self.marks[0][0] < iteration else (0, 0.0)
+        pace = (elapsed_s - e0) / (iteration - i0)
+        rest = (1.0 - self.p) * max(self.iterations, 1)
+        if self.cost is None or rest <= 0:
+            return rest * pace
+        later = [self.p + (1.0 - self.p) * (k + 0.5) / 16 for k in range(16)]
+        return rest * pace * sum(self.cost(q) for q in later) / 16 / max(self.cost(self.p), 1e-12)
 
     def release(self, reason: str) -> None:
         self.holding, self.released = False, True
@@ -103,7 +120,7 @@ class Schedule:
     # ------------------------------------------------------------------ checkpoints
     def state(self) -> dict:
         return {k: getattr(self, k) for k in ("p", "holding", "released", "stop_reason", "best",
-                                               "since_best", "evals", "history")}
+                                               "since_best", "evals", "history", "marks")}
 
     def load_state(self, state: dict) -> None:
         for k, v in state.items():

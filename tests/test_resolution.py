@@ -1,10 +1,11 @@
-"""Training on random windows of the views (recon/train/crop.py): a window's camera renders
-exactly that window of the whole view, gradients included, and training through windows learns."""
+"""What of a view a step trains on (recon/train/resolution.py): a window's camera renders exactly
+that window of the whole view, gradients included; a coarse copy averages blocks and keeps the
+geometry; training through windows or coarse to fine learns."""
 import pytest
 import torch
 
 from recon.splat import rasterization
-from recon.train.crop import random_crop, window
+from recon.train.resolution import coarse_to_fine, downscale, factor_at, random_crop, window
 from recon.train.trainer import Trainer
 from tests.splat_scenes import default_camera, random_gaussians
 from tests.test_train import small_cfg, tiny
@@ -70,3 +71,44 @@ def test_training_on_half_windows_raises_heldout_psnr(tmp_path_factory):
     # +0.7..1.4 dB RGB, +2.7..4.4 dB thermal over seeds 0-3 (whole frames, seed 0: +2.1, +7.0)
     assert after["rgb"] > before["rgb"] + 0.4, (before, after)
     assert after["thermal"] > before["thermal"] + 1.8, (before, after)
+
+
+def test_a_coarse_view_averages_blocks_over_valid_pixels_and_projects_alike():
+    cam = default_camera(64, 48)
+    rgb = torch.rand(48, 64, 3, generator=torch.Generator().manual_seed(2))
+    small_cam, small, none = downscale(cam, rgb, None, 4)
+    assert (small_cam.width, small_cam.height) == (16, 12) and none is None
+    assert torch.allclose(small[2, 3], rgb[8:12, 12:16].mean((0, 1)))
+    u = torch.rand(48, 64, generator=torch.Generator().manual_seed(3))
+    valid = torch.ones(48, 64, dtype=torch.bool)
+    valid[0:4, 0:4] = False              # a block without any measurement
+    valid[4:8, 0:4] = False
+    valid[4, 0] = True                   # a block with one
+    _, small_u, small_valid = downscale(cam, u, valid, 4)
+    assert not small_valid[0, 0] and small_valid[1, 0] and torch.isclose(small_u[1, 0], u[4, 0])
+    assert torch.isclose(small_u[2, 2], u[8:12, 8:12].mean())
+    # a point lands at 1/4 of its pixel coordinates (pixel centres at i + 0.5)
+    x = torch.tensor([0.3, -0.2, 0.5, 1.0])
+    def pixel(c):
+        p = (c.viewmat @ x)[:3]
+        return torch.tensor([c.fx * p[0] / p[2] + c.cx, c.fy * p[1] / p[2] + c.cy])
+    assert torch.allclose(pixel(small_cam), pixel(cam) / 4, atol=1e-5)
+
+
+def test_coarse_to_fine_schedule_doubles_after_the_hold():
+    s = coarse_to_fine(2, 1 / 3)
+    assert [factor_at(s, p) for p in (0.0, 0.33, 0.34, 0.66, 0.67, 1.0)] == [4, 4, 2, 2, 1, 1]
+    assert coarse_to_fine(0, 1 / 3) == ((0.0, 1),)
+
+
+def test_training_coarse_to_fine_raises_heldout_psnr(tmp_path_factory):
+    scene = tiny(tmp_path_factory)
+    cfg = small_cfg(iterations=200)
+    cfg.resolution = coarse_to_fine(1, 0.5)      # 24x18 for the first half, then 48x36
+    tr = Trainer(cfg, scene, log=lambda _: None)
+    before = tr.holdout_psnr()
+    while not tr.done():
+        tr.step()
+    after = tr.holdout_psnr()
+    assert after["rgb"] > before["rgb"] + 1.0, (before, after)
+    assert after["thermal"] > before["thermal"] + 3.0, (before, after)
