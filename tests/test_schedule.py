@@ -90,10 +90,8 @@ def test_a_slow_start_does_not_end_a_capped_run_early():
 
 
 def test_iterations_that_get_costlier_still_finish_the_schedule_at_the_cap():
-    # coarse to fine: iterations after the hold cost 4x; without the cost model the schedule was
-    # cut from p = 0.94 to 1 at the cap (the full-size phase lost); with it p arrives smoothly
-    cost = lambda p: 1.0 if p < 1 / 3 else 4.0      # noqa: E731
-    schedule = Schedule(3000, minutes=10, converge=True)
-    schedule.cost = cost
-    end, before = cap_run(schedule, lambda it, p: 0.05 * cost(p))
+    # coarse to fine: iterations after the hold cost 4x; with the pace since the start the
+    # schedule was cut from p = 0.94 to 1 at the cap (the full-size phase lost); with the recent
+    # pace p arrives smoothly
+    end, before = cap_run(Schedule(3000, minutes=10, converge=True), lambda it, p: 0.05 * (1.0 if p < 1 / 3 else 4.0))
     assert 595 <= end <= 600.1 and before > 0.995, (end, before)

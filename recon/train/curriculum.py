@@ -16,6 +16,7 @@ import torch
 
 from recon.dtg.motion import apply_motion
 from recon.render import render_frame
+from recon.train.resolution import downscale
 
 
 def window_bounds(iteration: int, n_times: int, center: float, start_steps: int, grow_every: float,
@@ -146,21 +147,27 @@ def continue_beyond(model, lo: float, hi: float) -> None:
         extrapolate_rows(table.data, lo, hi, dim=0, velocity=False)
 
 
+SEARCH_WIDTH = 160     # place_bases compares views about this wide: its pixel steps were chosen there
+
+
 def frames_at(scene, modalities, t: float) -> list[tuple]:
-    """[(modality, view, target, valid)] of every training view at time t: what place_bases compares."""
+    """[(modality, camera, target, valid)] of every training view at time t, downscaled to about
+    SEARCH_WIDTH pixels wide: what place_bases compares (at 640x480 its renders at full size
+    made a run's first minutes 10x slower)."""
     frames = []
     for m in modalities:
         for view in scene.views_at(m, t):
             target, valid = scene.target(view)
-            frames.append((m, view, target, valid))
+            camera, target, valid = downscale(view.camera, target, valid, max(1, view.camera.width // SEARCH_WIDTH))
+            frames.append((m, camera, target, valid))
     return frames
 
 
 def frame_loss(model, frames, t: float) -> float:
-    """Mean L1 of the model's renders at time t against frames [(modality, view, target, valid)]."""
+    """Mean L1 of the model's renders at time t against frames [(modality, camera, target, valid)]."""
     total = 0.0
-    for modality, view, target, valid in frames:
-        pred = render_frame(model, modality, t, view.camera)
+    for modality, camera, target, valid in frames:
+        pred = render_frame(model, modality, t, camera)
         if modality == "rgb":
             total += float((pred - target).abs().mean())
         else:
@@ -191,7 +198,7 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
     basis = g["motion_basis"].long()
     gate = model.dynamic_gate()
     weight = torch.sigmoid(g[f"opacity_{frames[0][0]}"]) * gate
-    cam = frames[0][1].camera
+    cam = frames[0][1]
     rot = cam.viewmat[:3, :3]
     current = frame_loss(model, frames, t)
     for b in range(motion.count):

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable
 
 
 @dataclass
@@ -41,7 +40,6 @@ class Schedule:
     evals: int = 0
     history: list = field(default_factory=list)
     marks: list = field(default_factory=list)     # (iteration, elapsed s) every 50 iterations: the recent pace
-    cost: Callable[[float], float] | None = None  # relative cost of an iteration at progress p (None: constant)
 
     # ------------------------------------------------------------------ progress
     def progress(self, iteration: int, elapsed_s: float) -> float:
@@ -75,18 +73,13 @@ class Schedule:
 
     def seconds_to_finish(self, iteration: int, elapsed_s: float) -> float:
         """Wall-clock seconds the rest of the schedule (1 - p) needs at one nominal step per
-        iteration: the recent pace (over the last 250 iterations: a run's first iterations are
-        slower, e.g. while its time window grows) times the iterations left, each weighted by
-        cost(p) / cost(now) where the cost per iteration changes along the schedule (coarse to fine)."""
+        iteration, at the recent pace: over the last 250 iterations, not since the start (a
+        run's first iterations are slower, e.g. while its time window grows; coarse to fine
+        changes the cost per iteration along the run)."""
         if iteration % 50 == 0 and (not self.marks or self.marks[-1][0] < iteration):
             self.marks = (self.marks + [(iteration, elapsed_s)])[-6:]
         i0, e0 = self.marks[0] if self.marks and self.marks[0][0] < iteration else (0, 0.0)
-        pace = (elapsed_s - e0) / (iteration - i0)
-        rest = (1.0 - self.p) * max(self.iterations, 1)
-        if self.cost is None or rest <= 0:
-            return rest * pace
-        later = [self.p + (1.0 - self.p) * (k + 0.5) / 16 for k in range(16)]
-        return rest * pace * sum(self.cost(q) for q in later) / 16 / max(self.cost(self.p), 1e-12)
+        return (1.0 - self.p) * max(self.iterations, 1) * (elapsed_s - e0) / (iteration - i0)
 
     def release(self, reason: str) -> None:
         self.holding, self.released = False, True

@@ -81,7 +81,6 @@ class Trainer:
         self.rounds_without_gain = 0
         self.schedule = Schedule(cfg.iterations, cfg.minutes, cfg.stop.converge, cfg.stop.hold_at,
                                  cfg.stop.patience, cfg.stop.min_gain_db)
-        self.schedule.cost = self._step_cost
         self.guard = DivergenceGuard(cfg.guard)
         self.lr_scale = 1.0          # lowered by each rollback
         self.events: list[dict] = []   # divergences and rollbacks, for the log, history and status
@@ -146,14 +145,6 @@ class Trainer:
         if self.cfg.minutes and not self.cfg.stop.converge and self.iteration >= 20 and self.progress() > 0:
             return self.iteration / self.progress()
         return float(self.cfg.iterations)
-
-    def _step_cost(self, p: float) -> float:
-        """Relative cost of an iteration at progress p: the pixels a step renders, plus the work
-        that does not depend on them, which costs about what 20k pixels do (bench/train_step.py,
-        dtg: 22 / 81 / 221 ms at 19k / 77k / 307k pixels)."""
-        cam = next(iter(self.scene.train[self.cfg.model.modalities[0]])).camera
-        f = factor_at(self.cfg.resolution, p)
-        return 20_000 + (cam.width // f) * (cam.height // f) * min(self.cfg.crop, 1.0) ** 2
 
     def active_sh_degree(self, modality: str, p: float) -> int:
         full = self.cfg.model.rgb_sh_degree if modality == "rgb" else self.cfg.model.thermal_sh_degree
