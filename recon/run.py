@@ -308,6 +308,7 @@ def register(sub) -> None:
                "  recon simulate data/default --frames 40 --size 160x120\n"
                "  recon run data/default --out runs/dtg --minutes 10\n"
                "  recon run data/default --method ed3dgs-thermal --out runs/ed-th --iterations 2000\n"
+               "  recon run sessions/s1 --downscale 1 --coarse-to-fine 2 --crop 0.5 --out runs/s1-640   # at 640x480\n"
                "  recon run data/default --out runs/dtg --resume      # continue from the last checkpoint\n"
                "  recon run sessions/s1 --out runs/s1                 # a rig session: recon prepare, then train\n"
                "  recon run scenes/lab --out runs/lab                 # an RGBT-Scenes folder: the same\n"
