@@ -157,7 +157,8 @@ class DTGModel(nn.Module):
         applied: dict[str, torch.Tensor] = {}
         if cfg.deformation != "none":
             stage = "shared" if cfg.deformation == "shared" else modality
-            later = in_view is not None and not self.moves_geometry(stage)    # after the geometry
+            # a network that changes only opacity and features runs after the geometry, on the rows in view
+            later = in_view is not None and stage in self.deformers and not self.moves_geometry(stage)
             res = {} if later else self.stage_residuals(stage, t, progress)
             res = {**{k: torch.zeros_like(geo[k]) for k in GEOMETRY}, **res}
             applied = {k: res[k] for k in GEOMETRY}
