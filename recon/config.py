@@ -369,8 +369,10 @@ def config_from_dict(d: dict) -> TrainConfig:
            "curriculum": CurriculumConfig}
     for key, cls in sub.items():
         fields = {f.name for f in dataclasses.fields(cls)}
-        vals = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.get(key, {}).items() if k in fields}
-        d[key] = cls(**vals)
-    if "resolution" in d:         # JSON lists back to ((p, factor), ...)
-        d["resolution"] = tuple((float(p), int(f)) for p, f in d["resolution"])
-    return TrainConfig(**d)
+        d[key] = cls(**{k: _tuples(v) for k, v in d.get(key, {}).items() if k in fields})
+    return TrainConfig(**{k: v if k in sub else _tuples(v) for k, v in d.items()})
+
+
+def _tuples(value):
+    """JSON lists back to the tuples the configs hold (nested: TrainConfig.resolution)."""
+    return tuple(_tuples(v) for v in value) if isinstance(value, list) else value

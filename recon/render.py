@@ -15,7 +15,7 @@ from recon.train.checkpoint import read_checkpoint
 from recon.dtg.model import DTGModel
 from recon.scene import Camera
 from recon.splat import rasterization
-from recon.splat.rasterization import NEAR_PLANE, project
+from recon.splat.rasterization import intrinsics, project
 from recon.data import viewmat_from_c2w_opengl
 
 
@@ -35,9 +35,8 @@ def in_view(camera: Camera, threads: int | None = None):
         means = geo["means"]
         ones = torch.ones(means.shape[0])
         radii = project(means, geo["quats"], geo["log_scales"], ones, ones[:, None], camera.viewmat.float(),
-                        (float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy), camera.width,
-                         camera.height, NEAR_PLANE, camera.window or (0, 0, camera.width, camera.height)),
-                        None, torch.get_num_threads() if threads is None else threads)[3]
+                        intrinsics(*camera.args()[1:], window=camera.window), None,
+                        torch.get_num_threads() if threads is None else threads)[3]
         return torch.nonzero(radii > 0).view(-1)
     return rows
 

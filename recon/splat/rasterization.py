@@ -68,6 +68,16 @@ def _check_camera(fx, fy, cx, cy, width, height, near_plane) -> None:
             raise ValueError(f"{name} must be a positive int, got {v!r}")
 
 
+def intrinsics(fx, fy, cx, cy, width, height, near_plane=NEAR_PLANE, window=None) -> tuple:
+    """Checked camera values -> the projection's intr tuple (fx, fy, cx, cy, width, height,
+    near_plane, window); window (x0, y0, full_width, full_height), None: the whole view."""
+    _check_camera(fx, fy, cx, cy, width, height, near_plane)
+    window = (0, 0, width, height) if window is None else tuple(int(v) for v in window)
+    if len(window) != 4 or min(window[:2]) < 0 or window[0] + width > window[2] or window[1] + height > window[3]:
+        raise ValueError(f"window {window} must be (x0, y0, full_width, full_height) holding the {width}x{height} image")
+    return (float(fx), float(fy), float(cx), float(cy), width, height, float(near_plane), window)
+
+
 def _check_features(features, sh_degree, n: int) -> None:
     """features (N,C) used as colours, or SH coefficients (N,K>=(sh_degree+1)^2,C)."""
     if sh_degree is None:
@@ -137,7 +147,7 @@ def rasterization(
     _check("log_scales", log_scales, (n, 3))
     _check("opacities", opacities, (n,))
     _check("viewmat", viewmat, (4, 4), (torch.float32, torch.float64))
-    _check_camera(fx, fy, cx, cy, width, height, near_plane)
+    intr = intrinsics(fx, fy, cx, cy, width, height, near_plane, window)
     threads = torch.get_num_threads() if threads is None else int(threads)
     if threads < 1:
         raise ValueError(f"threads must be >= 1, got {threads}")
@@ -146,10 +156,6 @@ def rasterization(
     channels = features.shape[-1]
     if background is not None:
         _check("background", background, (channels,), (torch.float32, torch.float64))
-    window = (0, 0, width, height) if window is None else tuple(int(v) for v in window)
-    if len(window) != 4 or min(window[:2]) < 0 or window[0] + width > window[2] or window[1] + height > window[3]:
-        raise ValueError(f"window {window} must be (x0, y0, full_width, full_height) holding the {width}x{height} image")
-    intr = (float(fx), float(fy), float(cx), float(cy), width, height, float(near_plane), window)
     means2d, conics, depths, radii, colors = project(means, quats, log_scales, opacities, features, viewmat, intr,
                                                      sh_degree, threads)
     if means2d.requires_grad:

@@ -61,6 +61,8 @@ class Schedule:
         else:
             self.p = min(self.p + step, 1.0)
         if self.minutes and iteration > 0:
+            if iteration % 50 == 0 and (not self.marks or self.marks[-1][0] < iteration):
+                self.marks = (self.marks + [(iteration, elapsed_s)])[-6:]    # for the recent pace
             left_s = 60.0 * self.minutes - elapsed_s
             need = self.seconds_to_finish(iteration, elapsed_s)
             if self.holding and not self.released and left_s < need:
@@ -76,8 +78,6 @@ class Schedule:
         iteration, at the recent pace: over the last 250 iterations, not since the start (a
         run's first iterations are slower, e.g. while its time window grows; coarse to fine
         changes the cost per iteration along the run)."""
-        if iteration % 50 == 0 and (not self.marks or self.marks[-1][0] < iteration):
-            self.marks = (self.marks + [(iteration, elapsed_s)])[-6:]
         i0, e0 = self.marks[0] if self.marks and self.marks[0][0] < iteration else (0, 0.0)
         return (1.0 - self.p) * max(self.iterations, 1) * (elapsed_s - e0) / (iteration - i0)
 
