@@ -55,6 +55,14 @@ def render(model: DTGModel, modality: str, t: float, camera: Camera, progress: f
     if frozen is not None:
         g = {**g, **{k: torch.where(frozen.view(-1, *[1] * (g[k].dim() - 1)), g[k].detach(), g[k])
                      for k in ("means", "quats", "log_scales", "opacities", "features")}}
+    image, out = draw(model, modality, g, camera, sh_degree, background, threads)
+    return image, out, g
+
+
+def draw(model: DTGModel, modality: str, g: dict[str, torch.Tensor], camera: Camera, sh_degree: int | None = None,
+         background: torch.Tensor | None = None, threads: int | None = None):
+    """Rasterize a modality's render inputs g (DTGModel.render_inputs) in camera over the
+    background (None: the learned one) -> (image (H, W, C), rasterizer output)."""
     feats = g["features"]
     degree = int(round(feats.shape[1] ** 0.5)) - 1 if sh_degree is None else sh_degree
     out = rasterization(g["means"], g["quats"], g["log_scales"], g["opacities"],
@@ -62,8 +70,7 @@ def render(model: DTGModel, modality: str, t: float, camera: Camera, progress: f
                         camera.cx, camera.cy, camera.width, camera.height, sh_degree=degree, threads=threads,
                         window=camera.window)
     bg = model.backgrounds[modality] if background is None else background
-    image = out.image + (1 - out.alpha)[..., None] * bg
-    return image, out, g
+    return out.image + (1 - out.alpha)[..., None] * bg, out
 
 
 @torch.no_grad()

@@ -21,6 +21,7 @@ from recon.eval.evaluate import moving_masks
 from recon.dtg.losses import thermal_loss
 from recon.render import render, render_frame
 from recon.scene import Scene
+from recon.train.curriculum import BodySearch, frames_at, window_loss
 from recon.train.trainer import Trainer
 
 
@@ -92,3 +93,40 @@ def test_thermal_loss_moves_the_bodies_rgb_loss_moves_too(scene):
     thermal_loss(image[..., 0], target, valid).backward()
     rgb_net = [p for n, p in mlp.model.named_parameters() if n.startswith("deformers.rgb.")]
     assert rgb_net and all(p.grad is None or not p.grad.any() for p in rgb_net)
+
+
+def test_body_search_scores_offsets_as_whole_frame_renders_do(scene):
+    """place_bases scores a body's candidate offsets on the windows where it draws, drawing only the
+    Gaussians that reach them from inputs computed once (BodySearch): each candidate's loss change
+    must equal the change of the whole-frame loss with every Gaussian rendered by the model."""
+    cfg = make_config("dtg", iterations=500, log_every=10**9, checkpoint_every=10**9, eval_every=10**9)
+    cfg.curriculum.hold, cfg.curriculum.grow_every = 60, 10
+    trainer = Trainer(cfg, scene, log=lambda _: None)
+    for _ in range(80):
+        trainer.step()
+    model, motion = trainer.model, trainer.model.motion
+    t = trainer.scene.train["rgb"][len(trainer.scene.train["rgb"]) // 2].time
+    frames = frames_at(trainer.scene, cfg.model.modalities, t)
+    search = BodySearch(model, frames, t)
+    assert search.exact
+    knots = torch.arange(motion.translation.shape[1])
+    cam = frames[0][1]
+    compared, window_pixels = 0, []
+    for b in range(motion.count):
+        depth = float((cam.viewmat[:3, :3] @ motion.pivots[b] + cam.viewmat[:3, 3])[2])
+        offsets = [s * depth / cam.fx * cam.viewmat[0, :3] + r * depth / cam.fy * cam.viewmat[1, :3]
+                   for s, r in ((6, 0), (-3, 4), (0, -6))]
+        plans = search.plan(b, knots, offsets)
+        window_pixels += [w[2] * w[3] / (f[1].width * f[1].height) for (w, _, _), f in zip(plans, frames) if w]
+        before = search.loss(b, knots, torch.zeros(3), plans)
+        whole_before = window_loss(model, frames, t)
+        for offset in offsets:
+            with torch.no_grad():
+                motion.translation[b] += offset
+            whole = window_loss(model, frames, t) - whole_before
+            with torch.no_grad():
+                motion.translation[b] -= offset
+            assert abs((search.loss(b, knots, offset, plans) - before) - whole) < 1e-8, (b, whole)
+            compared += whole != 0
+    assert compared >= 2                         # the offsets did change the renders
+    assert window_pixels and min(window_pixels) < 0.5, window_pixels

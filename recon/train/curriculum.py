@@ -15,7 +15,8 @@ from __future__ import annotations
 import torch
 
 from recon.dtg.motion import apply_motion
-from recon.render import render_frame
+from recon.render import draw, inference_masks, render_frame
+from recon.splat.rasterization import intrinsics, project
 from recon.train.resolution import downscale
 
 
@@ -163,17 +164,144 @@ def frames_at(scene, modalities, t: float) -> list[tuple]:
     return frames
 
 
-def frame_loss(model, frames, t: float) -> float:
-    """Mean L1 of the model's renders at time t against frames [(modality, camera, target, valid)]."""
+@torch.no_grad()
+def window_loss(model, frames, t: float, windows: list | None = None, inputs: list | None = None) -> float:
+    """Mean L1 of the model's renders at time t against frames [(modality, camera, target, valid)]
+    (thermal over valid pixels), each frame's error summed over one pixel window only: windows
+    [(x0, y0, w, h) | None (the whole frame) | () (skip the frame)], None: whole frames. A window's
+    error is divided by its whole frame's pixel count, so when only the pixels inside the windows
+    can change, a difference of two window losses equals the difference of the whole-frame losses.
+    inputs: per frame, Gaussians to draw ({means, quats, log_scales, opacities, features}: render
+    inputs of its modality at t, or the rows of them that reach its window) instead of the model."""
     total = 0.0
-    for modality, camera, target, valid in frames:
-        pred = render_frame(model, modality, t, camera)
-        if modality == "rgb":
-            total += float((pred - target).abs().mean())
-        else:
-            err = (pred[..., 0] - target).abs()
-            total += float(err[valid].mean()) if valid is not None and valid.any() else float(err.mean())
+    for i, ((modality, camera, target, valid), win) in enumerate(zip(frames, windows or [None] * len(frames))):
+        if win == ():
+            continue
+        valid = valid if modality != "rgb" and valid is not None and valid.any() else None
+        norm = target.numel() if valid is None else int(valid.sum())
+        if win is not None:
+            x0, y0, w, h = win
+            camera, target = camera.crop(x0, y0, w, h), target[y0:y0 + h, x0:x0 + w]
+            valid = None if valid is None else valid[y0:y0 + h, x0:x0 + w]
+        pred = render_frame(model, modality, t, camera) if inputs is None else draw(model, modality, inputs[i], camera)[0]
+        err = (pred - target).abs() if modality == "rgb" else (pred[..., 0] - target).abs()
+        total += float((err[valid] if valid is not None else err).double().sum()) / norm
     return total / max(len(frames), 1)
+
+
+def footprint(camera, positions: list[tuple[torch.Tensor, torch.Tensor]], log_scales: torch.Tensor) -> tuple:
+    """The pixel window (x0, y0, w, h) of camera holding every pixel that Gaussians with log_scales
+    (M, 3) can draw at any of positions [(means (M, 3), quats (M, 4))]: the rasterizer's own
+    footprint at full opacity (its widest), plus a pixel. () when they draw nothing in the view."""
+    ones = torch.ones(log_scales.shape[0])
+    intr = intrinsics(*camera.args()[1:], window=camera.window)
+    lo, hi = [], []
+    for means, quats in positions:
+        means2d, _, _, radii, _ = project(means, quats, log_scales, ones, ones[:, None], camera.viewmat.float(),
+                                          intr, None, torch.get_num_threads())
+        drawn = radii > 0
+        r = (radii[drawn] + 1).float()[:, None]
+        lo.append(means2d[drawn] - r)
+        hi.append(means2d[drawn] + r)
+    lo, hi = torch.cat(lo), torch.cat(hi)
+    if lo.numel() == 0:
+        return ()
+    x0, y0 = (max(int(v), 0) for v in lo.amin(0).floor())
+    x1, y1 = (int(v) for v in hi.amax(0).ceil())
+    x1, y1 = min(x1, camera.width), min(y1, camera.height)
+    return (x0, y0, x1 - x0, y1 - y0) if x1 > x0 and y1 > y0 else ()
+
+
+PER_GAUSSIAN = ("means", "quats", "log_scales", "opacities", "features")
+
+
+def reaching(camera, g: dict[str, torch.Tensor], window: tuple) -> torch.Tensor:
+    """(R,) sorted indices of the Gaussians g (render inputs) whose rasterizer footprint in camera
+    (opacity-aware, plus a pixel) reaches window (x0, y0, w, h): all a render of it needs."""
+    x0, y0, w, h = window
+    ones = torch.ones(g["means"].shape[0], 1)
+    means2d, _, _, radii, _ = project(g["means"], g["quats"], g["log_scales"], g["opacities"], ones,
+                                      camera.viewmat.float(), intrinsics(*camera.args()[1:], window=camera.window),
+                                      None, torch.get_num_threads())
+    r = (radii + 1).float()
+    u, v = means2d.unbind(1)
+    hit = (radii > 0) & (u + r >= x0) & (u - r <= x0 + w) & (v + r >= y0) & (v - r <= y0 + h)
+    return hit.nonzero()[:, 0]
+
+
+class BodySearch:
+    """Renders of the model at time t with one body moved, for place_bases.
+
+    Only body b's Gaussians change between candidates, so each candidate is drawn from render
+    inputs computed once (networks, routing masks, every other Gaussian) with b's rows moved,
+    scored on the window of each frame where b draws (footprint), and drawn from the Gaussians
+    that reach that window only: the same pixels as a full render. A network that moves geometry
+    (or per-Gaussian trajectories) may move any Gaussian: then every candidate is a full render."""
+
+    def __init__(self, model, frames, t: float):
+        self.model, self.frames, self.t = model, frames, t
+        g = model.gaussians
+        self.exact = "trajectory" not in g and not any(model.moves_geometry(s) for s in model.deformers)
+        self.inputs = None
+        if self.exact:
+            masks = inference_masks(model)
+            with torch.no_grad():
+                self.inputs = {m: model.render_inputs(m, t, mask=None if masks is None else masks[m])
+                               for m in {f[0] for f in frames}}
+
+    def rows(self, b: int) -> torch.Tensor:
+        return (self.model.gaussians["motion_basis"].long() == b + 1).nonzero()[:, 0]
+
+    def moved(self, b: int, knots: torch.Tensor, offset: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Body b's Gaussians (means, quats) at t with offset (3,) added to its translation knots."""
+        model, motion, g = self.model, self.model.motion, self.model.gaussians
+        saved = motion.translation.data[b, knots].clone()
+        motion.translation.data[b, knots] = saved + offset
+        idx = self.rows(b)
+        out = apply_motion(g["means"][idx], g["quats"][idx], g["motion_basis"][idx], model.dynamic_gate(idx),
+                           motion, self.t)
+        motion.translation.data[b, knots] = saved
+        return out
+
+    def plan(self, b: int, knots: torch.Tensor, offsets: list[torch.Tensor]) -> list | None:
+        """Per frame, (window where body b draws as it is or with any of offsets, the rows of the
+        render inputs that reach it, body b's places among those rows); None: whole frames."""
+        if not self.exact:
+            return None
+        idx = self.rows(b)
+        positions = [self.moved(b, knots, o) for o in [torch.zeros(3)] + offsets]
+        scales = self.model.gaussians["log_scales"][idx]
+        plans = []
+        for modality, camera, _, _ in self.frames:
+            window = footprint(camera, positions, scales)
+            if window == ():
+                plans.append(((), None, None))
+                continue
+            inp = self.inputs[modality]
+            sub = torch.unique(torch.cat([reaching(camera, inp, window), idx]))
+            plans.append((window, {k: inp[k][sub] for k in PER_GAUSSIAN}, torch.searchsorted(sub, idx)))
+        return plans
+
+    def loss(self, b: int, knots: torch.Tensor, offset: torch.Tensor, plans: list | None) -> float:
+        """window_loss with body b's translation knots moved by offset (3,)."""
+        if plans is None:
+            motion = self.model.motion
+            saved = motion.translation.data[b, knots].clone()
+            motion.translation.data[b, knots] = saved + offset
+            loss = window_loss(self.model, self.frames, self.t)
+            motion.translation.data[b, knots] = saved
+            return loss
+        means, _ = self.moved(b, knots, offset)
+        inputs = [None if g is None else {**g, "means": g["means"].index_copy(0, pos, means)} for _, g, pos in plans]
+        return window_loss(self.model, self.frames, self.t, [w for w, _, _ in plans], inputs)
+
+    def move(self, b: int, knots: torch.Tensor, offset: torch.Tensor) -> None:
+        """Keep offset: body b's knots move, and so do its rows of the cached inputs."""
+        self.model.motion.translation.data[b, knots] += offset
+        if self.exact:
+            idx, (means, _) = self.rows(b), self.moved(b, knots, torch.zeros(3))
+            for inp in self.inputs.values():
+                inp["means"] = inp["means"].index_copy(0, idx, means)
 
 
 @torch.no_grad()
@@ -200,7 +328,7 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
     weight = torch.sigmoid(g[f"opacity_{frames[0][0]}"]) * gate
     cam = frames[0][1]
     rot = cam.viewmat[:3, :3]
-    current = frame_loss(model, frames, t)
+    search = BodySearch(model, frames, t)
     for b in range(motion.count):
         sel = basis == b + 1
         if float(weight[sel].sum()) < min_opacity_mass:
@@ -225,18 +353,14 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
         if 0 <= k_prev < knots:
             speed = float((motion.translation[b, k] - motion.translation[b, k_prev]).norm()) * cam.fx / depth
         steps = [max(s, 0.5 ** i * 0.5 * speed) for i, s in enumerate(pixel_steps)]
-        candidates = [[(i * s * depth / cam.fx) * rot[0] + (j * s * depth / cam.fy) * rot[1]
-                       for i in (-1, 0, 1) for j in (-1, 0, 1)] for s in steps]
-        for group in candidates:
-            best, best_loss = torch.zeros(3), current
+        for s in steps:
+            group = [(i * s * depth / cam.fx) * rot[0] + (j * s * depth / cam.fy) * rot[1]
+                     for i in (-1, 0, 1) for j in (-1, 0, 1) if i or j]
+            plans = search.plan(b, rows, group)
+            best, best_loss = None, search.loss(b, rows, torch.zeros(3), plans)
             for offset in group:
-                if not offset.abs().sum():
-                    continue
-                motion.translation.data[b, rows] += offset
-                loss = frame_loss(model, frames, t)
-                motion.translation.data[b, rows] -= offset
+                loss = search.loss(b, rows, offset, plans)
                 if loss < best_loss - 1e-6:
                     best, best_loss = offset, loss
-            if best.abs().sum():
-                motion.translation.data[b, rows] += best
-                current = best_loss
+            if best is not None:
+                search.move(b, rows, best)
