@@ -83,6 +83,11 @@ class ModelConfig:
     basis_points: int = 30           # a connected cluster of flagged points with fewer than
                                      # max(this / 5, 3) points is not a body (stays static)
     basis_gate_init: float = 3.0     # starting gate logit of a Gaussian in a basis (sigmoid: 0.95)
+    # A body member whose own colour the RGB views show in at least basis_static_share of the views
+    # that see it looks like the static scene (floor under an object's path: it changes only while
+    # the object passes) and starts at gate logit basis_gate_static instead (None: off)
+    basis_gate_static: float | None = None
+    basis_static_share: float = 0.6
     body_reach: float = 0.0          # a body's Gaussians stay within this x its farthest initial point
                                      # of its pivot (MotionBases.keep_within); 0: unbounded
     # A bias on the deformation's geometry outputs moves every Gaussian alike. Adam moves it by

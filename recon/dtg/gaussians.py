@@ -81,11 +81,12 @@ def extend_knots(knots: torch.Tensor, factor: int, zero: bool = False) -> torch.
 def init_gaussians(points: torch.Tensor, colors: torch.Tensor, temperatures: torch.Tensor | None,
                    cfg: ModelConfig, routing: RoutingConfig, generator: torch.Generator,
                    knots: int = 0, dynamic: torch.Tensor | None = None,
-                   basis: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+                   basis: torch.Tensor | None = None, gates: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
     """Gaussians at initial points, 3DGS style.
 
     points: (M, 3); colors: (M, 3) in [0, 1]; temperatures: (M,) normalised temperature or None;
-    dynamic: (M,) bool, which points may move (ModelConfig.motion_split; None: all).
+    dynamic: (M,) bool, which points may move (ModelConfig.motion_split; None: all); gates: (M,)
+    starting gate logits of body members (None: ModelConfig.basis_gate_init).
     Scales are isotropic, sqrt of the mean squared distance to the 3 nearest neighbours.
     """
     m = points.shape[0]
@@ -115,7 +116,7 @@ def init_gaussians(points: torch.Tensor, colors: torch.Tensor, temperatures: tor
         params["dynamic_logit"] = torch.full((m,), cfg.init_dynamic)
     if cfg.motion_bases and cfg.deformation != "none":
         params["motion_basis"] = (basis if basis is not None else torch.zeros(m)).float()
-        params["dynamic_logit"] = torch.full((m,), cfg.basis_gate_init)
+        params["dynamic_logit"] = torch.full((m,), cfg.basis_gate_init) if gates is None else gates.float().clone()
     if cfg.motion_split and cfg.deformation != "none":
         params["dynamic"] = (dynamic if dynamic is not None else torch.ones(m)).float()   # 1: may move
     return params

@@ -10,7 +10,8 @@ from recon.config import TrainConfig
 from recon.dtg.gaussians import init_gaussians, trajectory_knots
 from recon.dtg.model import DTGModel
 from recon.dtg.motion import body_clusters, body_radii
-from recon.dtg.points import changing_points, initial_temperatures, observed_time, sample_views, transient_points
+from recon.dtg.points import (changing_points, colour_seen_fraction, initial_temperatures, observed_time,
+                               sample_views, transient_points)
 from recon.scene import Scene
 from recon.sfm import points_from_frames
 
@@ -98,11 +99,33 @@ def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log
     if bases:
         pts, rgb, dynamic, basis, pivots = _motion_bodies(cfg, scene, pts, rgb, dynamic, log)
     temps = initial_temperatures(scene, pts) if "thermal" in m.modalities else None
+    gates = body_gates(cfg, scene, pts, rgb, basis) if basis is not None else None
+    if gates is not None:       # a body turns about what moves in it, not about the floor it came with
+        for b in range(len(pivots)):
+            moving = (basis == b + 1) & (gates > m.basis_gate_static)
+            if int(moving.sum()) >= 3:
+                pivots[b] = pts[moving].mean(0)
     params = init_gaussians(pts, rgb, temps, m, cfg.routing, gen, trajectory_knots(m, n_times),
-                            dynamic if m.motion_split else None, basis)
+                            dynamic if m.motion_split else None, basis, gates)
     bgs = {mod: initial_background(scene, mod) for mod in m.modalities}
     radii = body_radii(pts, basis, pivots, m.body_reach) if pivots is not None else None
     return DTGModel(m, params, n_times=n_times, backgrounds=bgs, pivots=pivots, radii=radii), held
+
+
+def body_gates(cfg: TrainConfig, scene: Scene, pts: torch.Tensor, rgb: torch.Tensor, basis: torch.Tensor
+               ) -> torch.Tensor | None:
+    """(P,) starting gate logits of points pts (P, 3) with colours rgb (P, 3) in bodies basis (P,):
+    basis_gate_static for members that look static (colour_seen_fraction >= basis_static_share),
+    basis_gate_init for the others; None when ModelConfig.basis_gate_static is off."""
+    m = cfg.model
+    if m.basis_gate_static is None:
+        return None
+    gates = torch.full((len(pts),), m.basis_gate_init)
+    members = basis > 0
+    if members.any():
+        share = colour_seen_fraction(scene, pts[members], rgb[members])
+        gates[members] = torch.where(share >= m.basis_static_share, m.basis_gate_static, m.basis_gate_init)
+    return gates
 
 
 def body_gaussians(cfg: TrainConfig, scene: Scene, pts: torch.Tensor, rgb: torch.Tensor, basis: torch.Tensor,
