@@ -199,9 +199,15 @@ def test_serve_from_args_passes_the_batch_folder(runs, capsys):
     assert serve_from_args(argparse.Namespace(serve=False), batch_dir=runs) is None
 
 
+def interruptible() -> None:
+    """In the server's process before exec: Ctrl-C (SIGINT) at its default, as in a terminal. A suite
+    started as a background job (`make test &`) has SIGINT ignored, and children inherit that."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
 def test_cli_serves_a_batch(runs):
     proc = subprocess.Popen([sys.executable, "-m", "server", "--batch", str(runs), "--port", "0"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=interruptible)
     try:
         m = re.match(r"status page: http://127\.0\.0\.1:(\d+)/", proc.stdout.readline())
         assert m

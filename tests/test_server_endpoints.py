@@ -173,9 +173,15 @@ def test_without_a_run_or_session_those_endpoints_stay_503(tmp_path):
         get(h, "/")                                             # stopped means stopped
 
 
+def interruptible() -> None:
+    """In the server's process before exec: Ctrl-C (SIGINT) at its default, as in a terminal. A suite
+    started as a background job (`make test &`) has SIGINT ignored, and children inherit that."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
 def test_cli_serves_until_interrupted(tmp_path, run):
     proc = subprocess.Popen([sys.executable, "-m", "server", "--run", str(run), "--port", "0"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=interruptible)
     try:
         line = proc.stdout.readline()
         m = re.match(r"status page: http://127\.0\.0\.1:(\d+)/", line)
