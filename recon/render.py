@@ -27,17 +27,27 @@ def inference_masks(model: DTGModel) -> dict[str, torch.Tensor] | None:
     return routing.masks(torch.nn.functional.one_hot(roles, 3).float())
 
 
+def pixel_boxes(camera: Camera, means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor,
+                opacities: torch.Tensor, threads: int | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Where Gaussians (means (N, 3), quats, log_scales, opacities (N,)) can draw in camera: the
+    rasterizer's own opacity-aware footprint plus a pixel, as boxes lo (N, 2), hi (N, 2) in pixels,
+    and drawn (N,) bool (what its projection culls draws nothing)."""
+    means2d, _, _, radii, _ = project(means, quats, log_scales, opacities, torch.ones(means.shape[0], 1),
+                                      camera.viewmat.float(), intrinsics(*camera.args()[1:], window=camera.window),
+                                      None, torch.get_num_threads() if threads is None else threads)
+    r = (radii + 1).float()[:, None]
+    return means2d - r, means2d + r, radii > 0
+
+
 def in_view(camera: Camera, threads: int | None = None):
     """geometry {means (N,3), quats, log_scales} -> (R,) indices of the Gaussians the rasterizer
     may draw in this camera (its projection's culling at full opacity, the widest footprint: a
     superset of what any opacity draws)."""
     def rows(geo: dict[str, torch.Tensor]) -> torch.Tensor:
-        means = geo["means"]
-        ones = torch.ones(means.shape[0])
-        radii = project(means, geo["quats"], geo["log_scales"], ones, ones[:, None], camera.viewmat.float(),
-                        intrinsics(*camera.args()[1:], window=camera.window), None,
-                        torch.get_num_threads() if threads is None else threads)[3]
-        return torch.nonzero(radii > 0).view(-1)
+        ones = torch.ones(geo["means"].shape[0])
+        drawn = pixel_boxes(camera, geo["means"], geo["quats"], geo["log_scales"], ones, threads)[2]
+        return torch.nonzero(drawn).view(-1)
     return rows
 
 

@@ -17,7 +17,7 @@ import server
 from recon.live.publish import LivePublisher, atomic_write
 from server.cli_options import serve_from_args
 from tests.chromium import ARGS, CHROMIUM, playwright
-from tests.test_server_endpoints import get
+from tests.test_server_endpoints import get, interruptible
 
 SECRET = b"top secret: never served"
 NODE = "5f3c8e2a9b1d4c7e6f0a2b3c4d5e6f708192a3b4c5d6e7f8091a2b3c"
@@ -198,11 +198,6 @@ def test_serve_from_args_passes_the_batch_folder(runs, capsys):
         h.stop()
     assert serve_from_args(argparse.Namespace(serve=False), batch_dir=runs) is None
 
-
-def interruptible() -> None:
-    """In the server's process before exec: Ctrl-C (SIGINT) at its default, as in a terminal. A suite
-    started as a background job (`make test &`) has SIGINT ignored, and children inherit that."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 def test_cli_serves_a_batch(runs):
     proc = subprocess.Popen([sys.executable, "-m", "server", "--batch", str(runs), "--port", "0"],

@@ -178,6 +178,7 @@ def interruptible() -> None:
     started as a background job (`make test &`) has SIGINT ignored, and children inherit that."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
+
 def test_cli_serves_until_interrupted(tmp_path, run):
     proc = subprocess.Popen([sys.executable, "-m", "server", "--run", str(run), "--port", "0"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

@@ -12,11 +12,12 @@ find the object.
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import torch
 
 from recon.dtg.motion import apply_motion
-from recon.render import draw, inference_masks, render_frame
-from recon.splat.rasterization import intrinsics, project
+from recon.render import draw, inference_masks, pixel_boxes, render_frame
 from recon.train.resolution import downscale
 
 
@@ -183,7 +184,10 @@ def window_loss(model, frames, t: float, windows: list | None = None, inputs: li
             x0, y0, w, h = win
             camera, target = camera.crop(x0, y0, w, h), target[y0:y0 + h, x0:x0 + w]
             valid = None if valid is None else valid[y0:y0 + h, x0:x0 + w]
-        pred = render_frame(model, modality, t, camera) if inputs is None else draw(model, modality, inputs[i], camera)[0]
+        if inputs is None:
+            pred = render_frame(model, modality, t, camera)
+        else:
+            pred = draw(model, modality, inputs[i], camera)[0]
         err = (pred - target).abs() if modality == "rgb" else (pred[..., 0] - target).abs()
         total += float((err[valid] if valid is not None else err).double().sum()) / norm
     return total / max(len(frames), 1)
@@ -191,18 +195,14 @@ def window_loss(model, frames, t: float, windows: list | None = None, inputs: li
 
 def footprint(camera, positions: list[tuple[torch.Tensor, torch.Tensor]], log_scales: torch.Tensor) -> tuple:
     """The pixel window (x0, y0, w, h) of camera holding every pixel that Gaussians with log_scales
-    (M, 3) can draw at any of positions [(means (M, 3), quats (M, 4))]: the rasterizer's own
-    footprint at full opacity (its widest), plus a pixel. () when they draw nothing in the view."""
+    (M, 3) can draw at any of positions [(means (M, 3), quats (M, 4))]: pixel_boxes at full opacity
+    (their widest). () when they draw nothing in the view."""
     ones = torch.ones(log_scales.shape[0])
-    intr = intrinsics(*camera.args()[1:], window=camera.window)
     lo, hi = [], []
     for means, quats in positions:
-        means2d, _, _, radii, _ = project(means, quats, log_scales, ones, ones[:, None], camera.viewmat.float(),
-                                          intr, None, torch.get_num_threads())
-        drawn = radii > 0
-        r = (radii[drawn] + 1).float()[:, None]
-        lo.append(means2d[drawn] - r)
-        hi.append(means2d[drawn] + r)
+        box_lo, box_hi, drawn = pixel_boxes(camera, means, quats, log_scales, ones)
+        lo.append(box_lo[drawn])
+        hi.append(box_hi[drawn])
     lo, hi = torch.cat(lo), torch.cat(hi)
     if lo.numel() == 0:
         return ()
@@ -216,16 +216,11 @@ PER_GAUSSIAN = ("means", "quats", "log_scales", "opacities", "features")
 
 
 def reaching(camera, g: dict[str, torch.Tensor], window: tuple) -> torch.Tensor:
-    """(R,) sorted indices of the Gaussians g (render inputs) whose rasterizer footprint in camera
-    (opacity-aware, plus a pixel) reaches window (x0, y0, w, h): all a render of it needs."""
+    """(R,) sorted indices of the Gaussians g (render inputs) whose pixel_boxes in camera (at their
+    opacities) reach window (x0, y0, w, h): all a render of it needs."""
     x0, y0, w, h = window
-    ones = torch.ones(g["means"].shape[0], 1)
-    means2d, _, _, radii, _ = project(g["means"], g["quats"], g["log_scales"], g["opacities"], ones,
-                                      camera.viewmat.float(), intrinsics(*camera.args()[1:], window=camera.window),
-                                      None, torch.get_num_threads())
-    r = (radii + 1).float()
-    u, v = means2d.unbind(1)
-    hit = (radii > 0) & (u + r >= x0) & (u - r <= x0 + w) & (v + r >= y0) & (v - r <= y0 + h)
+    lo, hi, drawn = pixel_boxes(camera, g["means"], g["quats"], g["log_scales"], g["opacities"])
+    hit = drawn & (hi[:, 0] >= x0) & (lo[:, 0] <= x0 + w) & (hi[:, 1] >= y0) & (lo[:, 1] <= y0 + h)
     return hit.nonzero()[:, 0]
 
 
@@ -248,20 +243,31 @@ class BodySearch:
             with torch.no_grad():
                 self.inputs = {m: model.render_inputs(m, t, mask=None if masks is None else masks[m])
                                for m in {f[0] for f in frames}}
+        self._rows: dict[int, torch.Tensor] = {}
 
     def rows(self, b: int) -> torch.Tensor:
-        return (self.model.gaussians["motion_basis"].long() == b + 1).nonzero()[:, 0]
+        """(M,) indices of body b's Gaussians (the bodies do not change during a search)."""
+        if b not in self._rows:
+            self._rows[b] = (self.model.gaussians["motion_basis"].long() == b + 1).nonzero()[:, 0]
+        return self._rows[b]
+
+    @contextmanager
+    def offset(self, b: int, knots: torch.Tensor, offset: torch.Tensor):
+        """Within: body b's translation knots `knots` moved by offset (3,); restored exactly after."""
+        translation = self.model.motion.translation.data
+        saved = translation[b, knots].clone()
+        translation[b, knots] = saved + offset
+        try:
+            yield
+        finally:
+            translation[b, knots] = saved
 
     def moved(self, b: int, knots: torch.Tensor, offset: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Body b's Gaussians (means, quats) at t with offset (3,) added to its translation knots."""
-        model, motion, g = self.model, self.model.motion, self.model.gaussians
-        saved = motion.translation.data[b, knots].clone()
-        motion.translation.data[b, knots] = saved + offset
-        idx = self.rows(b)
-        out = apply_motion(g["means"][idx], g["quats"][idx], g["motion_basis"][idx], model.dynamic_gate(idx),
-                           motion, self.t)
-        motion.translation.data[b, knots] = saved
-        return out
+        model, g, idx = self.model, self.model.gaussians, self.rows(b)
+        with self.offset(b, knots, offset):
+            return apply_motion(g["means"][idx], g["quats"][idx], g["motion_basis"][idx], model.dynamic_gate(idx),
+                                model.motion, self.t)
 
     def plan(self, b: int, knots: torch.Tensor, offsets: list[torch.Tensor]) -> list | None:
         """Per frame, (window where body b draws as it is or with any of offsets, the rows of the
@@ -285,12 +291,8 @@ class BodySearch:
     def loss(self, b: int, knots: torch.Tensor, offset: torch.Tensor, plans: list | None) -> float:
         """window_loss with body b's translation knots moved by offset (3,)."""
         if plans is None:
-            motion = self.model.motion
-            saved = motion.translation.data[b, knots].clone()
-            motion.translation.data[b, knots] = saved + offset
-            loss = window_loss(self.model, self.frames, self.t)
-            motion.translation.data[b, knots] = saved
-            return loss
+            with self.offset(b, knots, offset):
+                return window_loss(self.model, self.frames, self.t)
         means, _ = self.moved(b, knots, offset)
         inputs = [None if g is None else {**g, "means": g["means"].index_copy(0, pos, means)} for _, g, pos in plans]
         return window_loss(self.model, self.frames, self.t, [w for w, _, _ in plans], inputs)
