@@ -1,0 +1,84 @@
+"""Is a drift the guard stops real? Train one run with the guard's drift check off and record,
+every evaluation, how far the deformation moves the median Gaussian, then grade the end.
+
+    python bench/drift.py --out bench/results/drift --scene family-inside --seed 103 \
+        --method ed3dgs-thermal --minutes 3
+
+Two measures per evaluation (scene extents, median over 4096 Gaussians, 5 instants): ``offset``,
+the largest distance from the canonical position (what the guard tests), and ``spread``, the
+largest distance from the Gaussian's own mean position over time. A spread much smaller than the
+offset would be a harmless gauge shift (canonical position + a constant offset renders the same);
+a spread near the offset is real motion over time. The end is graded like `recon eval` (per
+region) on the held-out rig. Writes OUT/drift-SCENE-sSEED-METHOD.json (one thread, the
+protocol of bench/table.py).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from ablation import family_data  # noqa: E402
+from recon.config import GuardConfig, make_config  # noqa: E402
+from recon.data import load_dataset  # noqa: E402
+from recon.run import evaluate_model  # noqa: E402
+from recon.scene import Scene  # noqa: E402
+from recon.train.trainer import Trainer  # noqa: E402
+
+
+@torch.no_grad()
+def motion(model, progress: float, extent: float, seed: int, sample: int = 4096, times: int = 5) -> dict:
+    """{offset, spread} in scene extents (module docstring)."""
+    n = model.num_gaussians
+    idx = torch.randperm(n, generator=torch.Generator().manual_seed(seed))[:sample]
+    stage = model.motion_stage()
+    at = torch.stack([model.means_at(stage, float(t), progress, idx) for t in torch.linspace(0, 1, times)])
+    offset = (at - model.gaussians["means"][idx]).norm(dim=2).max(0).values
+    spread = (at - at.mean(0)).norm(dim=2).max(0).values
+    return {"offset": round(float(offset.median()) / extent, 4), "spread": round(float(spread.median()) / extent, 4)}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--scene", default="family-inside")
+    ap.add_argument("--seed", type=int, default=103)
+    ap.add_argument("--method", default="ed3dgs-thermal")
+    ap.add_argument("--minutes", type=float, default=3.0)
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    data = family_data(args.out, args.scene, args.seed)
+    cfg = make_config(args.method, minutes=args.minutes, log_every=10**9, checkpoint_every=10**9, threads=1)
+    cfg.guard = GuardConfig(max_median_motion=math.inf)
+    trainer = Trainer(cfg, Scene(load_dataset(data)), None, log=print)
+    limit = GuardConfig().max_median_motion
+    curve = []
+    while not trainer.done():
+        trainer.tick()
+        if trainer.iteration % cfg.eval_every == 0:
+            curve.append({"iteration": trainer.iteration, "seconds": round(trainer.elapsed, 1),
+                          **motion(trainer.model, trainer.progress(), trainer.extent, trainer.iteration)})
+            print(curve[-1], flush=True)
+    graded = evaluate_model(trainer)
+    result = {"scene": args.scene, "seed": args.seed, "method": args.method, "minutes": args.minutes,
+              "guard_limit": limit, "iterations": trainer.iteration, "events": trainer.events,
+              "first_over_limit": next((c["iteration"] for c in curve if c["offset"] > limit), None),
+              "curve": curve, "test": {m: graded[m] for m in cfg.model.modalities},
+              "regions": graded.get("regions", {})}
+    path = args.out / f"drift-{args.scene}-s{args.seed}-{args.method}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(result, indent=1, default=float))
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
