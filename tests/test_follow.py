@@ -186,8 +186,11 @@ def test_follow_finishes_a_capture_that_died_without_closing(tmp_path):
     logs = []
     cfg = make_config("dtg", iterations=1, eval_every=1000, log_every=1000, checkpoint_every=10_000)
     t0 = time.monotonic()
+    # This test is about finishing, not about poses: a 6 s capture recorded while the suite loads
+    # both cores once registered 6 of 8 frames, below prepare's 80 % (the follower then rightly
+    # refused), so it accepts 60 %.
     trainer, data_dir = follow(session, run, cfg, FollowOptions(after_iterations=20, stall_s=2.0, poll_s=0.2),
-                               logs.append, prepare_options={"downscale": 4})
+                               logs.append, prepare_options={"downscale": 4, "min_registered": 0.6})
     assert any("treating the capture as ended" in line for line in logs), logs
     assert data_dir is not None and trainer.iteration >= 20
     assert time.monotonic() - t0 < 300
