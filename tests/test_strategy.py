@@ -116,3 +116,37 @@ def test_step_densifies_within_budget_and_prunes_dead():
     assert report["cloned"] + report["split"] <= 5       # room 10 -> at most 5 candidates
     assert params["means"].shape[0] <= 60
     assert report["pruned"] >= 5
+
+
+def test_opacity_reset_caps_opacities_once_per_period_while_densifying():
+    params, opt = make()
+    strat = Strategy(DensifyConfig(opacity_reset_every=0.1, reset_opacity=0.01, start=0.03, stop=0.5),
+                     ("rgb", "thermal"), 1.0, torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        params["opacity_rgb"][:5] = -10.0          # already below the cap: kept
+    low = params["opacity_rgb"].detach()[:5].clone()
+    other = params["embedding_rgb"].detach().clone()
+    assert not strat.reset_opacities(params, opt, 0.05)       # the first period is not over yet
+    assert strat.reset_opacities(params, opt, 0.10)
+    cap = torch.logit(torch.tensor(0.01))
+    for m in ("rgb", "thermal"):
+        p = params[f"opacity_{m}"]
+        assert float(p.detach().max()) <= float(cap) + 1e-6
+        assert not opt.state[p]["exp_avg"].any() and not opt.state[p]["exp_avg_sq"].any()
+    assert torch.equal(params["opacity_rgb"].detach()[:5], low)
+    assert torch.equal(params["embedding_rgb"].detach(), other)
+    assert_consistent(params, opt)
+    assert not strat.reset_opacities(params, opt, 0.15)        # once per period
+    assert strat.reset_opacities(params, opt, 0.21)
+    assert not strat.reset_opacities(params, opt, 0.55)        # densification is over
+
+
+def test_opacity_reset_off_by_default_and_not_at_once_after_resume():
+    params, opt = make()
+    before = params["opacity_rgb"].detach().clone()
+    strat = Strategy(DensifyConfig(), ("rgb", "thermal"), 1.0, torch.Generator())
+    assert not any(strat.reset_opacities(params, opt, p) for p in (0.1, 0.2, 0.3))
+    resumed = Strategy(DensifyConfig(opacity_reset_every=0.1), ("rgb", "thermal"), 1.0, torch.Generator())
+    assert not resumed.reset_opacities(params, opt, 0.35)     # a run resumed mid-period waits for 0.4
+    assert torch.equal(params["opacity_rgb"].detach(), before)
+    assert resumed.reset_opacities(params, opt, 0.4)

@@ -118,6 +118,7 @@ class Strategy:
         self.generator = generator
         self.stats = DensifyStats()
         self.growing = True      # cleared by the trainer's automatic budget
+        self.resets_done: int | None = None     # opacity resets passed (set at the first step: a resumed run does not reset at once)
 
     def accumulate(self, modality: str, means2d_grad: torch.Tensor, radii: torch.Tensor,
                    width: int, height: int) -> None:
@@ -163,6 +164,25 @@ class Strategy:
         if room > 0:
             top[torch.where(candidates, grad, -1.0).topk(room).indices] = True
         return candidates & top
+
+    @torch.no_grad()
+    def reset_opacities(self, params: nn.ParameterDict, optimizer: torch.optim.Optimizer, progress: float) -> bool:
+        """3DGS's opacity reset, once each time progress passes a multiple of opacity_reset_every
+        while densifying: every modality's opacity is capped at reset_opacity and its Adam moments
+        are cleared. Returns whether it reset."""
+        every = self.cfg.opacity_reset_every
+        if every <= 0 or not self.cfg.start <= progress < self.cfg.stop:
+            return False
+        due = int(progress / every)
+        if self.resets_done is None:
+            self.resets_done = due
+        if due <= self.resets_done:
+            return False
+        self.resets_done = due
+        cap = float(torch.logit(torch.tensor(self.cfg.reset_opacity)))
+        for m in self.modalities:
+            swap_parameter(params, optimizer, f"opacity_{m}", lambda x: x.clamp(max=cap), torch.zeros_like)
+        return True
 
     def active(self, iteration: int, progress: float) -> bool:
         return (self.cfg.start <= progress < self.cfg.stop and iteration > 0

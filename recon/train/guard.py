@@ -47,10 +47,13 @@ class DivergenceGuard:
     over: dict[str, int] = field(default_factory=dict)
     best_holdout: dict[str, float] = field(default_factory=dict)
 
-    def reset(self) -> None:
-        """Forget the loss history (after a rollback the old medians no longer apply)."""
+    def reset(self, holdout: bool = False) -> None:
+        """Forget the loss history (after a rollback the old medians no longer apply); holdout:
+        the best held-out PSNR too (after an opacity reset the model rebuilds its opacities)."""
         self.losses.clear()
         self.over.clear()
+        if holdout:
+            self.best_holdout.clear()
 
     def check_step(self, stats: dict, ratio: bool = True) -> str | None:
         """A reason if this iteration's losses say the run blew up, else None. Per-view losses

@@ -286,6 +286,9 @@ class Trainer:
         report = self.strategy.step(self.model.gaussians, self.optimizer, self.iteration, p)
         if report:
             stats.update(report)
+        if self.strategy.reset_opacities(self.model.gaussians, self.optimizer, p):
+            stats["opacity_reset"] = 1
+            self.guard.reset(holdout=True)     # the loss and held-out error jump by design
         self.elapsed += time.perf_counter() - start
         if self.progress_fn is None:
             self.schedule.advance(self.iteration, self.elapsed)
