@@ -31,16 +31,14 @@ from recon.config import GuardConfig, make_config  # noqa: E402
 from recon.data import load_dataset  # noqa: E402
 from recon.run import evaluate_model  # noqa: E402
 from recon.scene import Scene  # noqa: E402
+from recon.train.guard import sampled_paths  # noqa: E402
 from recon.train.trainer import Trainer  # noqa: E402
 
 
 @torch.no_grad()
-def motion(model, progress: float, extent: float, seed: int, sample: int = 4096, times: int = 5) -> dict:
-    """{offset, spread} in scene extents (module docstring)."""
-    n = model.num_gaussians
-    idx = torch.randperm(n, generator=torch.Generator().manual_seed(seed))[:sample]
-    stage = model.motion_stage()
-    at = torch.stack([model.means_at(stage, float(t), progress, idx) for t in torch.linspace(0, 1, times)])
+def motion(model, progress: float, extent: float, seed: int) -> dict:
+    """{offset, spread} in scene extents (module docstring), on the guard's own sample."""
+    idx, at = sampled_paths(model, progress, seed)
     offset = (at - model.gaussians["means"][idx]).norm(dim=2).max(0).values
     spread = (at - at.mean(0)).norm(dim=2).max(0).values
     return {"offset": round(float(offset.median()) / extent, 4), "spread": round(float(spread.median()) / extent, 4)}

@@ -126,16 +126,25 @@ def nonfinite_parameter(module: torch.nn.Module) -> str | None:
 
 
 @torch.no_grad()
-def median_motion(model, p: float, extent: float, seed: int = 0, sample: int = 4096, times: int = 5) -> float | None:
-    """The median over (a sample of) Gaussians of their largest displacement from the canonical
-    position over time, in scene extents (a drifting deformation moves them all); None for a
-    static model."""
+def sampled_paths(model, p: float, seed: int = 0, sample: int = 4096, times: int = 5):
+    """(idx (S,), positions (times, S, 3)): a seeded sample of Gaussians and where the deformation
+    puts them at `times` instants spread over [0, 1]; None for a static model."""
     stage = model.motion_stage()
     n = model.num_gaussians
     if (stage is None and model.motion is None) or n == 0:
         return None
     idx = torch.randperm(n, generator=torch.Generator().manual_seed(seed))[:sample]
-    mu = model.gaussians["means"][idx]
-    moved = torch.stack([(model.means_at(stage, float(t), p, idx) - mu).norm(dim=1)
-                         for t in torch.linspace(0, 1, times)])
+    return idx, torch.stack([model.means_at(stage, float(t), p, idx) for t in torch.linspace(0, 1, times)])
+
+
+@torch.no_grad()
+def median_motion(model, p: float, extent: float, seed: int = 0, sample: int = 4096, times: int = 5) -> float | None:
+    """The median over (a sample of) Gaussians of their largest displacement from the canonical
+    position over time, in scene extents (a drifting deformation moves them all); None for a
+    static model."""
+    paths = sampled_paths(model, p, seed, sample, times)
+    if paths is None:
+        return None
+    idx, at = paths
+    moved = (at - model.gaussians["means"][idx]).norm(dim=2)
     return float(moved.max(0).values.median()) / extent
