@@ -35,7 +35,13 @@ class ModelConfig:
     gaussian_embedding_dim: int = 32
     time_embedding_dim: int = 128   # split in half: coarse rows | fine rows (E-D3DGS's two levels)
     time_rows_coarse: int = 0       # 0: about frames/10 (E-D3DGS rule), at least 4
-    time_rows_fine: int = 0         # 0: about frames/2, at least 8
+    time_rows_fine: int = 0         # 0: about frames / steps_per_fine_row, at least 16 / it
+    # E-D3DGS's fine level: a row per 2 time steps (at least 8 rows). Fewer rows would keep dtg's
+    # F_th from flashing a static Gaussian hot while an object passes it in the one training view.
+    # At 10 (4 rows over 40 steps): dev family, 3000 it, median thermal MAE 3.84 -> 3.22 K (6 of 8
+    # runs better); never-tuned seeds at 3 min inside 3.81 -> 3.70 K, outside 2.17 -> 2.47 K
+    # (9 of 16 better; bench/results/time-rows): within run-to-run chaos, so it stays at 2.
+    steps_per_fine_row: float = 2.0
     time_rows_fine_start: float = 0.4   # fine rows grow from this fraction of their final count...
     time_c2f_until: float = 0.5         # ...to all rows at this progress (E-D3DGS coarse-to-fine)
     mlp_width: int = 64

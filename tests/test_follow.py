@@ -18,6 +18,7 @@ from recon.data.simulate import SimulateConfig, simulate_dataset
 from recon.live.follow import FollowOptions, align_dataset, follow, similarity
 from recon.render import render_frame
 from recon.scene import Scene
+from recon.dtg.model import time_rows
 from recon.dtg.time_embedding import TimeEmbedding
 from recon.train.trainer import Trainer
 
@@ -98,6 +99,17 @@ def test_time_rows_follow_the_density_of_time_steps(tmp_path):
     tr.replace_scene(quarter)                       # 4x denser: fine rows 8 -> at least 18
     assert tr.model.time_embedding.fine.shape[0] >= 2 * fine - 1
     tr.step()
+
+
+def test_time_rows_follow_e_d3dgs_unless_told():
+    """E-D3DGS's rule (coarse rows about frames/10, fine frames/2, at least 8), and fewer fine
+    rows with `steps_per_fine_row` (the switch of docs/training.md, bench/results/time-rows)."""
+    assert time_rows(make_config("ed3dgs-thermal").model, 40) == (4, 20)
+    assert time_rows(make_config("dtg").model, 8) == (4, 8)
+    few = make_config("dtg").model
+    few.steps_per_fine_row = 10
+    assert time_rows(few, 40) == (4, 4)
+    assert time_rows(few, 300) == (30, 30)
 
 
 def test_checkpoint_of_an_extended_embedding_loads(tmp_path):

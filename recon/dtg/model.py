@@ -35,7 +35,7 @@ def feature_shape(cfg: ModelConfig, modality: str) -> tuple[int, int]:
 
 def time_rows(cfg: ModelConfig, n_times: int) -> tuple[int, int]:
     coarse = cfg.time_rows_coarse or max(4, round(n_times / 10))
-    fine = cfg.time_rows_fine or max(8, round(n_times / 2))
+    fine = cfg.time_rows_fine or max(2, round(max(n_times, 16) / cfg.steps_per_fine_row))
     return coarse, fine
 
 
