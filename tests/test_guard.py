@@ -1,6 +1,7 @@
 """Training never fails silently: blow-ups are detected, rolled back, logged, and a repeated one
 stops the run with an error (recon/train/guard.py, Trainer._rollback)."""
 import math
+import statistics
 
 import pytest
 import torch
@@ -33,10 +34,31 @@ def test_a_run_of_high_losses_is_a_blow_up_but_spikes_are_not():
     for _ in range(8):
         assert guard.check_step({"loss_rgb": 0.06}) is None
     reasons = [guard.check_step({"loss_rgb": 0.25}) for _ in range(6)]
-    first = next(i for i, r in enumerate(reasons) if r)      # once half the window is high
-    assert first == 2 and "rgb loss median 0.1550 over the last 6 iterations" in reasons[first]
+    first = next(i for i, r in enumerate(reasons) if r)      # once 5 of the last 6 are high
+    assert first == 4 and "rgb loss lower quartile 0.2500 over the last 6 iterations" in reasons[first]
     assert guard.suspicious()
     assert "nan" in guard.check_step({"loss_thermal": math.nan})
+
+
+def test_a_changing_mix_of_easy_and_hard_views_is_not_a_blow_up():
+    """Windows (--crop) make a view's thermal loss bimodal: 0.0015 without the hot object, 0.05
+    with it (bench/results/crop-family). Drawn at random, 50 views at times hold more hard ones
+    than easy ones and their median jumps 3x (it does below, or the test proves nothing); the
+    guard must not call that a blow-up, and must still catch every view getting worse."""
+    gen = torch.Generator().manual_seed(0)
+    guard = DivergenceGuard(GuardConfig())
+    history, median_jumped = [], False
+    for _ in range(3000):
+        hard = float(torch.rand((), generator=gen)) < 0.45
+        value = (0.05 if hard else 0.0015) * (1 + 0.2 * float(torch.rand((), generator=gen)))
+        history.append(value)
+        recent, before = history[-50:], history[-250:-50]
+        if len(before) >= 50:
+            median_jumped |= statistics.median(recent) > 3 * statistics.median(before)
+        assert guard.check_step({"loss_thermal": value}) is None
+    assert median_jumped
+    reasons = [guard.check_step({"loss_thermal": 5 * history[i]}) for i in range(-50, 0)]
+    assert any(reasons) and "thermal loss lower quartile" in next(r for r in reasons if r)
 
 
 def test_collapsing_heldout_psnr_is_a_blow_up():
