@@ -51,8 +51,7 @@ def main() -> int:
     ap.add_argument("--iterations", type=int, default=3000)
     ap.add_argument("--out", required=True)
     args = ap.parse_args()
-    cfg = make_config("dtg", iterations=args.iterations, threads=2, log_every=10**9,
-                      checkpoint_every=10**9, eval_every=250)
+    cfg = make_config("dtg", iterations=args.iterations, threads=2)     # trained by step(): no eval or checkpoints
     cfg.stop.converge = False
     trainer = Trainer(cfg, Scene(load_dataset(args.data)), log=lambda _: None)
     if trainer.model.motion is None:
