@@ -246,11 +246,12 @@ class StopConfig:
 class GuardConfig:
     """Divergence detection and rollback (recon/train/guard.py)."""
     enabled: bool = True
-    # A loss's lower quartile over the last `patience` iterations may not exceed `factor` x its
-    # lower quartile over the `window` before them. Per-view losses are noisy (thermal ones
+    # A loss's lower quartile and median over the last `patience` iterations may not both exceed
+    # `factor` x those over the `window` before them. Per-view losses are noisy (thermal ones
     # bimodal: a hot object in view or not): on a healthy family run the 50-iteration thermal
     # median moved between 0.016 and 0.025, and 2x over 20 iterations fired falsely (rolled back
-    # at iteration 993); with --crop 0.5 the median itself flips between the modes (guard.py).
+    # at iteration 993); with --crop 0.5 the median alone flips between the modes, and the lower
+    # quartile alone tripled on a healthy held-out run (guard.rising_quartiles).
     window: int = 200
     factor: float = 3.0
     patience: int = 50

@@ -35,7 +35,8 @@ def test_a_run_of_high_losses_is_a_blow_up_but_spikes_are_not():
         assert guard.check_step({"loss_rgb": 0.06}) is None
     reasons = [guard.check_step({"loss_rgb": 0.25}) for _ in range(6)]
     first = next(i for i, r in enumerate(reasons) if r)      # once 5 of the last 6 are high
-    assert first == 4 and "rgb loss lower quartile 0.2500 over the last 6 iterations" in reasons[first]
+    assert first == 4 and "rgb loss over the last 6 iterations" in reasons[first]
+    assert "lower quartile 0.2500 against" in reasons[first]
     assert guard.suspicious()
     assert "nan" in guard.check_step({"loss_thermal": math.nan})
 
@@ -58,7 +59,31 @@ def test_a_changing_mix_of_easy_and_hard_views_is_not_a_blow_up():
         assert guard.check_step({"loss_thermal": value}) is None
     assert median_jumped
     reasons = [guard.check_step({"loss_thermal": 5 * history[i]}) for i in range(-50, 0)]
-    assert any(reasons) and "thermal loss lower quartile" in next(r for r in reasons if r)
+    assert any(reasons) and "thermal loss over the last 50 iterations" in next(r for r in reasons if r)
+
+
+def test_easy_views_getting_harder_is_not_a_blow_up():
+    """The other way round: on a healthy held-out run (family-outside seed 106, 3 min) the easiest
+    quarter of the thermal views tripled (lower quartile 0.0027 -> 0.0084) while the median stayed
+    at 0.0088; a guard on lower quartiles alone rolled it back three times, then stopped it. Drawn
+    here: the easy mode rises to the median's level and the hard half stays; the guard stays quiet
+    (the lower quartile did triple, or the test proves nothing), and still fires on every loss x5."""
+    gen = torch.Generator().manual_seed(1)
+    guard = DivergenceGuard(GuardConfig())
+
+    def draw(easy: float) -> float:
+        hard = float(torch.rand((), generator=gen)) < 0.55
+        return (0.009 if hard else easy) * (1 + 0.3 * float(torch.rand((), generator=gen)))
+
+    before = [draw(0.0025) for _ in range(400)]
+    after = [draw(0.008) for _ in range(400)]
+    for value in before + after:
+        assert guard.check_step({"loss_thermal": value}) is None
+    lq = lambda v: sorted(v)[len(v) // 4]                                          # noqa: E731
+    assert lq(after[:50]) > 3 * lq(before[-200:])
+    assert statistics.median(after[:50]) < 1.5 * statistics.median(before[-200:])
+    reasons = [guard.check_step({"loss_thermal": 5 * v}) for v in after[-50:]]
+    assert any(reasons)
 
 
 def test_collapsing_heldout_psnr_is_a_blow_up():
@@ -70,9 +95,12 @@ def test_collapsing_heldout_psnr_is_a_blow_up():
 
 
 def corrupt(trainer: Trainer) -> None:
-    """What a blow-up leaves behind: every Gaussian thrown far out of the scene."""
+    """What a blow-up leaves behind: every Gaussian's colour and temperature far out of range (the
+    losses 20-40x the healthy ones; throwing the Gaussians out of view instead leaves a background
+    render only 1.5-2x worse on this tiny scene, no more than a healthy run's own jumps)."""
     with torch.no_grad():
-        trainer.model.gaussians["means"].add_(50.0 * trainer.extent)
+        for key in ("features_rgb", "features_thermal"):
+            trainer.model.gaussians[key].mul_(-20.0)
 
 
 def train_with_corruptions(trainer: Trainer, at: set[int]) -> None:
@@ -85,7 +113,6 @@ def train_with_corruptions(trainer: Trainer, at: set[int]) -> None:
 def test_a_blow_up_is_rolled_back_with_lower_learning_rates_and_logged(scene):
     cfg = small_cfg(iterations=220)
     cfg.eval_every = 20
-    # factor 2: on this tiny scene the blown-up loss is 2.5-4x the healthy one
     cfg.guard = GuardConfig(window=40, patience=6, snapshot_every=20, factor=2.0)
     messages = []
     tr = Trainer(cfg, scene, log=messages.append)
@@ -95,16 +122,14 @@ def test_a_blow_up_is_rolled_back_with_lower_learning_rates_and_logged(scene):
     train_with_corruptions(tr, {121})
     assert len(tr.events) == 1, tr.events
     event = tr.events[0]
-    # caught once the last `patience` losses are mostly high: 3-9 iterations after the blow-up over
-    # 1-4 threads (some views of the thrown-out model score under 2x the healthy loss)
-    assert 121 < event["iteration"] <= 121 + 2 * 6 and event["rolled_back_to"] == 120
+    # caught once the last `patience` losses are mostly high: within a few iterations of the blow-up
+    assert 121 < event["iteration"] <= 121 + 6 and event["rolled_back_to"] == 120
     assert event["lr_scale"] == 0.5 and tr.lr_scale == 0.5
     assert any("divergence at iteration" in m and "rolled back to iteration 120" in m for m in messages)
-    # it recovered: the scene is where it was, and held-out quality is close to an untouched run
-    # (corrupt() threw every Gaussian 50 extents out; the scene's own points reach ~10 extents from
-    # the origin, so compare with the untouched run, not with a multiple of the extent)
-    reach = lambda t: float(t.model.gaussians["means"].detach().abs().max())  # noqa: E731
-    assert reach(tr) < 2 * reach(clean) < 20 * tr.extent, (reach(tr), reach(clean), tr.extent)
+    # it recovered: the colours are back in range, and held-out quality is close to an untouched run
+    for key in ("features_rgb", "features_thermal"):
+        peak = lambda t: float(t.model.gaussians[key].detach().abs().max())  # noqa: E731
+        assert peak(tr) < 2 * peak(clean), (key, peak(tr), peak(clean))
     after, reference = tr.holdout_psnr(), clean.holdout_psnr()
     for m in reference:
         assert after[m] > reference[m] - 2.0, (after, reference)
