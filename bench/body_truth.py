@@ -93,8 +93,9 @@ def grade(trainer: Trainer, oracle: Oracle) -> dict:
                 centres = [oracle.pose(k, t).position for k in range(len(oracle.objects))]
                 k = int(np.argmin([np.linalg.norm(c - q) for q in centres]))
                 ray = centres[k] - scene.views_at("thermal", t)[0].camera.center.numpy()
-                entry["at"].append({"t": round(t, 3), "object": k, "distance_m": round(float(np.linalg.norm(c - centres[k])), 3),
-                                    "along_ray_m": round(float((c - centres[k]) @ ray / np.linalg.norm(ray)), 3),
+                off = c - centres[k]
+                entry["at"].append({"t": round(t, 3), "object": k, "distance_m": round(float(np.linalg.norm(off)), 3),
+                                    "along_ray_m": round(float(off @ ray / np.linalg.norm(ray)), 3),
                                     "spread_m": round(spread, 3)})
         out["bodies"].append(entry)
     return out
@@ -105,12 +106,15 @@ def main() -> int:
     ap.add_argument("--scene", default="family-inside", help="a family variant")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--iterations", type=int, default=3000)
+    ap.add_argument("--size", default="160x120", help="simulated (and trained) resolution WxH")
     ap.add_argument("--override", default="{}", help='config overrides, e.g. \'{"densify.moving_budget": 0.1}\'')
     ap.add_argument("--data-dir", default=str(ROOT / "bench/results/body-truth"))
     ap.add_argument("--out", required=True)
     args = ap.parse_args()
     torch.set_num_threads(1)
-    data = family_data(Path(args.data_dir), args.scene, args.seed, frames=40)
+    width, height = (int(v) for v in args.size.split("x"))
+    data = family_data(Path(args.data_dir) / args.size, args.scene, args.seed, frames=40,
+                       width=width, height=height)
     cfg = make_config("dtg", iterations=args.iterations, threads=1)
     apply_overrides(cfg, json.loads(args.override))
     cfg.stop.converge = False
@@ -120,7 +124,8 @@ def main() -> int:
     while trainer.iteration < args.iterations:
         trainer.step()
     regions = evaluate_model(trainer, every=2)["regions"]["thermal"]
-    result = {"scene": args.scene, "seed": args.seed, "iterations": args.iterations, "override": json.loads(args.override),
+    result = {"scene": args.scene, "seed": args.seed, "size": args.size, "iterations": args.iterations,
+              "override": json.loads(args.override),
               "test_thermal_mae_k": {k: round(v["mae_k"], 3) for k, v in regions.items()},
               **grade(trainer, Oracle(args.scene, args.seed))}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)

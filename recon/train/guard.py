@@ -58,9 +58,9 @@ class DivergenceGuard:
 
     def check_step(self, stats: dict, ratio: bool = True) -> str | None:
         """A reason if this iteration's losses say the run blew up, else None. Per-view losses
-        are noisy, so the test is on quartiles: the last ``patience`` iterations against the
-        ``window`` before them (rising_quartiles). ratio=False: only non-finite losses count (while the training
-        window grows in time, each new time step raises the loss by design)."""
+        are noisy, so the test is on quartiles (rising_quartiles): the last ``patience`` iterations
+        against the ``window`` before them. ratio=False: only non-finite losses count (while the
+        training window grows in time, each new time step raises the loss by design)."""
         if not self.cfg.enabled:
             return None
         for key, value in stats.items():
