@@ -10,9 +10,9 @@ family scene (simulated into `--data-dir` unless there), then, at five instants 
 - ``opaque``: the body Gaussians with opacity > 0.5 (either modality), how many of them lie inside a
   moving object (its true shape and pose, 3 cm of tolerance), split by gate (open: they move with
   their body), and the median height above the floor of the open ones outside every object;
-- ``bodies``: per body, its open opaque Gaussians' opacity-weighted centre, its distance to the
-  nearest moving object's centre, the offset along the training rig's ray to that object (positive:
-  behind it), and the Gaussians' RMS spread about their centre.
+- ``bodies``: per body, its open Gaussians with opacity > 0.3: their opacity-weighted centre, its
+  distance to the nearest moving object's centre, the offset along the training rig's ray to that
+  object (positive: behind it), and the Gaussians' RMS spread about their centre.
 
 Writes one JSON file; prints it. Development seeds only (it reads the simulator's answer).
 """
@@ -56,9 +56,8 @@ def body_positions(model, rows: torch.Tensor, t: float) -> np.ndarray:
 def inside_any(oracle: Oracle, p: np.ndarray, t: float) -> np.ndarray:
     """(R,) bool: p (R, 3) lies inside some moving object at time t."""
     out = np.zeros(len(p), bool)
-    for k, o in enumerate(oracle.objects):
-        pose = oracle.pose(k, t)
-        out |= o.shape.contains((p - pose.position) @ pose.rotation, TOLERANCE_M)
+    for k in range(len(oracle.objects)):
+        out |= oracle.contains(k, t, p, TOLERANCE_M)
     return out
 
 
@@ -72,8 +71,8 @@ def grade(trainer: Trainer, oracle: Oracle) -> dict:
     rows_open, rows_closed = (opaque & (gate > 0.5)).nonzero()[:, 0], (opaque & (gate <= 0.5)).nonzero()[:, 0]
     out = {"objects": [{"name": o.name, "size_m": round(float(o.size), 3)} for o in oracle.objects],
            "body_gaussians": int((basis > 0).sum()), "gaussians": len(basis), "opaque": [], "bodies": []}
-    for t0 in INSTANTS:
-        t = min(scene.times, key=lambda x: abs(x - t0))
+    times = [min(scene.times, key=lambda x: abs(x - t0)) for t0 in INSTANTS]     # the nearest steps
+    for t in times:
         p_open, p_closed = body_positions(model, rows_open, t), body_positions(model, rows_closed, t)
         in_open, in_closed = inside_any(oracle, p_open, t), inside_any(oracle, p_closed, t)
         out["opaque"].append({"t": round(t, 3), "open": len(p_open), "open_inside": int(in_open.sum()),
@@ -85,8 +84,7 @@ def grade(trainer: Trainer, oracle: Oracle) -> dict:
         entry = {"body": b + 1, "gaussians": int((basis == b + 1).sum()), "open_opaque": len(rows), "at": []}
         if len(rows):
             w = opacity[rows].numpy()
-            for t0 in INSTANTS:
-                t = min(scene.times, key=lambda x: abs(x - t0))
+            for t in times:
                 p = body_positions(model, rows, t)
                 c = (p * w[:, None]).sum(0) / w.sum()
                 spread = float(np.sqrt((((p - c) ** 2).sum(1) * w).sum() / w.sum()))

@@ -57,12 +57,17 @@ class Oracle:
     def pose(self, k: int, t: float):
         return self.objects[k].instance(t * self.scene.duration_s, self.scene.duration_s)
 
+    def contains(self, k: int, t: float, points: np.ndarray, tolerance: float) -> np.ndarray:
+        """(P,) bool: points (P, 3) lie inside moving object k at time t, within tolerance (m)."""
+        pose = self.pose(k, t)
+        return self.objects[k].shape.contains((points - pose.position) @ pose.rotation, tolerance)
+
     def bodies(self, pts: torch.Tensor):
         """(instant t, members per object (bool (P,) each, empty objects skipped), object ids,
         ghosts (P,) bool: points of moving objects recorded at other instants)."""
         p = pts.numpy()
-        member = {(k, i): o.shape.contains((p - self.pose(k, t).position) @ self.pose(k, t).rotation, 0.012)
-                  for k, o in enumerate(self.objects) for i, t in enumerate(np.linspace(0, 1, SAMPLES))}
+        member = {(k, i): self.contains(k, t, p, 0.012)
+                  for k in range(len(self.objects)) for i, t in enumerate(np.linspace(0, 1, SAMPLES))}
         present = [sum(int(member[(k, i)].sum()) >= 3 for k in range(len(self.objects))) for i in range(SAMPLES)]
         best = max(range(SAMPLES), key=lambda i: (present[i], sum(int(member[(k, i)].sum()) for k in range(len(self.objects)))))
         ids = [k for k in range(len(self.objects)) if member[(k, best)].sum() >= 3]

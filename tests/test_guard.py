@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from recon.config import GuardConfig
-from recon.train.guard import DivergenceGuard, TrainingDiverged
+from recon.train.guard import DivergenceGuard, TrainingDiverged, lower_quartile
 from recon.train.trainer import Trainer
 
 from tests.test_train import small_cfg, tiny
@@ -79,8 +79,7 @@ def test_easy_views_getting_harder_is_not_a_blow_up():
     after = [draw(0.008) for _ in range(400)]
     for value in before + after:
         assert guard.check_step({"loss_thermal": value}) is None
-    lq = lambda v: sorted(v)[len(v) // 4]                                          # noqa: E731
-    assert lq(after[:50]) > 3 * lq(before[-200:])
+    assert lower_quartile(after[:50]) > 3 * lower_quartile(before[-200:])
     assert statistics.median(after[:50]) < 1.5 * statistics.median(before[-200:])
     reasons = [guard.check_step({"loss_thermal": 5 * v}) for v in after[-50:]]
     assert any(reasons)
