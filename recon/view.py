@@ -47,7 +47,11 @@ from rig.cli_format import positive_int
 MIN_SIZE, MAX_WIDTH, MAX_HEIGHT = 8, 1280, 960
 FOLLOW_K = 8
 FOLLOW_MIN_OPACITY = 0.05
-LIVE_MAX_DUTY = 0.08          # while training, rendering takes at most this share of wall time
+# While training, rendering takes at most this share of wall time. Each picture a second costs
+# training ~2.8 % (the inline render plus the browser drawing it, when the browser shares the 2
+# cores): at 0.08 the dragging page got 3.0 pictures/s and training kept 82 % of its speed, at 0.05
+# 2.5/s and 86.5 %, at 0.03 1.7/s and 88 % (bench/results/viewer-duty, docs/viewer.md).
+LIVE_MAX_DUTY = 0.04
 LIVE_NICE = 10                # and the render worker thread runs at this nice level
 MIN_SURFACE_ALPHA = 0.4       # a pixel this opaque has a surface to pick
 
