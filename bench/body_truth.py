@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
 from ablation import family_data  # noqa: E402
-from oracle import Oracle  # noqa: E402
+from oracle import Oracle, add_family_run_args  # noqa: E402
 from recon.config import make_config  # noqa: E402
 from recon.data import load_dataset  # noqa: E402
 from recon.dtg.motion import apply_motion  # noqa: E402
@@ -101,13 +101,8 @@ def grade(trainer: Trainer, oracle: Oracle) -> dict:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", default="family-inside", help="a family variant")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--iterations", type=int, default=3000)
+    add_family_run_args(ap, seed=0, iterations=3000, data_dir=ROOT / "bench/results/body-truth")
     ap.add_argument("--size", default="160x120", help="simulated (and trained) resolution WxH")
-    ap.add_argument("--override", default="{}", help='config overrides, e.g. \'{"densify.moving_budget": 0.1}\'')
-    ap.add_argument("--data-dir", default=str(ROOT / "bench/results/body-truth"))
-    ap.add_argument("--out", required=True)
     args = ap.parse_args()
     torch.set_num_threads(1)
     width, height = (int(v) for v in args.size.split("x"))

@@ -13,6 +13,8 @@ per region, plus the moving objects in the *training* views):
 - ``oracle-paths``: oracle bodies whose SE(3) knots are set to the true motion and frozen: the
   error that is left when only shapes, colours and temperatures are learned.
 
+``--rungs`` picks some of them (default: all).
+
 The gap between the last rung and the others is what tracking loses. The simulator's labels are
 read from rig/sim/family.py's scene (moving objects' shapes and motions); only family variants
 are supported.
@@ -80,6 +82,16 @@ class Oracle:
         return best / (SAMPLES - 1), [member[(k, best)] for k in ids], ids, ghosts
 
 
+def add_family_run_args(ap, seed: int, iterations: int, data_dir: Path) -> None:
+    """The arguments of a bench script that trains one family scene and grades it against the simulator."""
+    ap.add_argument("--scene", default="family-inside", help="a family variant")
+    ap.add_argument("--seed", type=int, default=seed, help="a development seed (never 100-107: held out)")
+    ap.add_argument("--iterations", type=int, default=iterations)
+    ap.add_argument("--override", default="{}", help='config overrides, e.g. \'{"densify.moving_budget": 0.1}\'')
+    ap.add_argument("--data-dir", default=str(data_dir), help="where the simulated scene is written (or found)")
+    ap.add_argument("--out", required=True, help="the JSON file to write")
+
+
 def oracle_bodies(oracle: Oracle, record: dict):
     """A replacement for recon.train.initial._motion_bodies that asks the simulator."""
     def motion_bodies(cfg, scene, pts, rgb, dynamic, log):
@@ -117,7 +129,7 @@ def run_one(job: dict) -> dict:
     rung = job["rung"]
     cfg = make_config("dtg", iterations=job["iterations"], log_every=10**9, checkpoint_every=10**9)
     record: dict = {}
-    if rung != "dtg":
+    if rung.startswith("oracle"):
         oracle = Oracle(job["scene"], job["seed"])
         initial._motion_bodies = oracle_bodies(oracle, record)
     if rung == "oracle-bodies+bodies-only":
@@ -148,6 +160,8 @@ def markdown(rows: list[dict]) -> str:
     lines = ["| rung | " + " | ".join(h for _, h in KEYS) + " |", "|---|" + "---|" * len(KEYS)]
     for rung in RUNGS:
         picked = [r for r in rows if r["rung"] == rung]
+        if not picked:
+            continue
         cells = [median_cell(picked, k) for k, _ in KEYS]
         lines.append(f"| {rung} | " + " | ".join(cells) + " |")
     return "Median over scenes and seeds.\n\n" + "\n".join(lines) + "\n"
@@ -160,7 +174,11 @@ def main() -> int:
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--iterations", type=int, default=2000)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--rungs", default=",".join(RUNGS), help=f"some of {', '.join(RUNGS)}")
     args = ap.parse_args()
+    rungs = args.rungs.split(",")
+    if not set(rungs) <= set(RUNGS):
+        raise SystemExit(f"--rungs: unknown {sorted(set(rungs) - set(RUNGS))}; known: {', '.join(RUNGS)}")
     from recon.batch.jobs import parse_seeds
     jobs = []
     for scene in args.scenes.split(","):
@@ -169,7 +187,7 @@ def main() -> int:
         for seed in parse_seeds(args.seeds):
             data = family_data(args.out, scene, seed, frames=40)
             jobs += [{"scene": scene, "seed": seed, "data": str(data), "rung": r, "iterations": args.iterations}
-                     for r in RUNGS]
+                     for r in rungs]
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(run_one, jobs))
     (args.out / "oracle.json").write_text(json.dumps({"settings": {k: str(v) for k, v in vars(args).items()},
