@@ -285,6 +285,12 @@ class CurriculumConfig:
     # Bodies found after a static warm-up of this many iterations (at most 15 % of a run;
     # recon/train/discover.py) instead of from the initial points alone. 0: from the points.
     discover_after: int = 0
+    # A step taken in keeps each body at the previous step's depth from the new view (its image
+    # position from constant velocity): the one direction a view cannot pin is not extrapolated.
+    # Off: on the never-tuned seeds thermal MAE fell (inside 3.90 -> 3.62 K, outside 2.24 -> 2.03)
+    # but the moving region inside rose 33.7 -> 41.1 K and RGB outside fell 1.3 dB
+    # (bench/results/hold-depth; docs/training.md, "Holding depth at intake").
+    hold_depth: bool = False
     outside: float = 0.0              # probability of a time step outside the window, with a loss
     outside_keep: float = 0.9         # over the best-fitting fraction of its pixels only
 

@@ -21,7 +21,8 @@ from recon.eval.evaluate import moving_masks
 from recon.dtg.losses import thermal_loss
 from recon.render import render, render_frame
 from recon.scene import Scene
-from recon.train.curriculum import BodySearch, frames_at, window_loss
+from recon.dtg.motion import apply_motion
+from recon.train.curriculum import BodySearch, frames_at, hold_at_depth, window_loss
 from recon.train.trainer import Trainer
 
 
@@ -95,16 +96,22 @@ def test_thermal_loss_moves_the_bodies_rgb_loss_moves_too(scene):
     assert rgb_net and all(p.grad is None or not p.grad.any() for p in rgb_net)
 
 
-def test_body_search_scores_offsets_as_whole_frame_renders_do(scene):
-    """place_bases scores a body's candidate offsets on the windows where it draws, drawing only the
-    Gaussians that reach them from inputs computed once (BodySearch): each candidate's loss change
-    must equal the change of the whole-frame loss with every Gaussian rendered by the model."""
+def window_trained(scene) -> Trainer:
+    """dtg 80 iterations into a run whose window grows every 10 from iteration 60: bodies with knots."""
     cfg = make_config("dtg", iterations=500, log_every=10**9, checkpoint_every=10**9, eval_every=10**9)
     cfg.curriculum.hold, cfg.curriculum.grow_every = 60, 10
     trainer = Trainer(cfg, scene, log=lambda _: None)
     for _ in range(80):
         trainer.step()
-    model, motion = trainer.model, trainer.model.motion
+    return trainer
+
+
+def test_body_search_scores_offsets_as_whole_frame_renders_do(scene):
+    """place_bases scores a body's candidate offsets on the windows where it draws, drawing only the
+    Gaussians that reach them from inputs computed once (BodySearch): each candidate's loss change
+    must equal the change of the whole-frame loss with every Gaussian rendered by the model."""
+    trainer = window_trained(scene)
+    cfg, model, motion = trainer.cfg, trainer.model, trainer.model.motion
     t = trainer.scene.train["rgb"][len(trainer.scene.train["rgb"]) // 2].time
     frames = frames_at(trainer.scene, cfg.model.modalities, t)
     search = BodySearch(model, frames, t)
@@ -130,3 +137,43 @@ def test_body_search_scores_offsets_as_whole_frame_renders_do(scene):
             compared += whole != 0
     assert compared >= 2                         # the offsets did change the renders
     assert window_pixels and min(window_pixels) < 0.5, window_pixels
+
+
+def test_holding_depth_slides_a_body_along_the_ray_to_its_previous_depth(scene):
+    """hold_at_depth (curriculum.hold_depth): a body whose new step was guessed at another depth is
+    slid along the view's ray back to the depth it had at the previous step: the weighted centre of
+    its Gaussians lands at that camera depth and keeps its pixel."""
+    trainer = window_trained(scene)
+    cfg, model, motion = trainer.cfg, trainer.model, trainer.model.motion
+    g, gate = model.gaussians, model.dynamic_gate()
+    knots = motion.translation.shape[1]
+    k = knots // 2
+    t = k / (knots - 1)
+    frames = frames_at(trainer.scene, cfg.model.modalities, t)
+    cam = frames[0][1]
+    rot, tr = cam.viewmat[:3, :3], cam.viewmat[:3, 3]
+    rows = torch.arange(k, knots)
+    moved = 0
+    with torch.no_grad():
+        for b in range(motion.count):
+            sel = g["motion_basis"] == b + 1
+            weight = torch.sigmoid(g["opacity_rgb"][sel]) * gate[sel]
+            motion.translation[b, rows] += 0.3 * rot[2]          # a guess 0.3 m deeper than it should be
+            search = BodySearch(model, frames, t)
+            means, _ = apply_motion(g["means"][sel], g["quats"][sel], g["motion_basis"][sel], gate[sel], motion, t)
+            prev, _ = apply_motion(g["means"][sel], g["quats"][sel], g["motion_basis"][sel], gate[sel], motion,
+                                   (k - 1) / (knots - 1))
+            centre = (means * weight[:, None]).sum(0) / weight.sum()
+            depth = float(rot[2] @ centre + tr[2])
+            _, new_depth = hold_at_depth(search, b, rows, cam, centre, depth, prev, gate[sel], weight)
+            after, _ = apply_motion(g["means"][sel], g["quats"][sel], g["motion_basis"][sel], gate[sel], motion, t)
+            centre2 = (after * weight[:, None]).sum(0) / weight.sum()
+            z_prev = float(rot[2] @ ((prev * weight[:, None]).sum(0) / weight.sum()) + tr[2])
+            if abs(depth - z_prev) < 0.05:
+                continue
+            moved += 1
+            pc, pc2 = rot @ centre + tr, rot @ centre2 + tr
+            assert abs(float(pc2[2]) - z_prev) < 1e-3 * z_prev and new_depth == pytest.approx(z_prev)
+            for i, f in ((0, cam.fx), (1, cam.fy)):
+                assert abs(f * float(pc[i] / pc[2] - pc2[i] / pc2[2])) < 1e-2        # same pixel
+    assert moved >= 1

@@ -306,9 +306,26 @@ class BodySearch:
                 inp["means"] = inp["means"].index_copy(0, idx, means)
 
 
+def hold_at_depth(search: BodySearch, b: int, knots: torch.Tensor, camera, centre: torch.Tensor, depth: float,
+                  prev_means: torch.Tensor, gate: torch.Tensor, weight: torch.Tensor) -> tuple[torch.Tensor, float]:
+    """Slide body b (its knots `knots`) along camera's ray through its centre (3,) at camera depth
+    `depth` to the depth its Gaussians had at the previous step (prev_means (M, 3), weights (M,)):
+    its pixel stays, the depth velocity of the constant-velocity guess is dropped. A Gaussian
+    follows its knots by its gate, so the knots move by the shift over the weighted mean gate.
+    -> (centre, depth) after the move (unchanged if it cannot move)."""
+    rot, tr = camera.viewmat[:3, :3], camera.viewmat[:3, 3]
+    z_prev = float(rot[2] @ ((prev_means * weight[:, None]).sum(0) / weight.sum()) + tr[2])
+    mean_gate = float((gate * weight).sum() / weight.sum())
+    if z_prev <= 1e-3 or mean_gate < 0.05:
+        return centre, depth
+    shift = (z_prev / depth - 1.0) * (centre + rot.T @ tr)     # centre - eye, scaled: along the ray
+    search.move(b, knots, shift / mean_gate)
+    return centre + shift, z_prev
+
+
 @torch.no_grad()
 def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.0,
-                pixel_steps: tuple[float, ...] = (6.0, 3.0)) -> None:
+                pixel_steps: tuple[float, ...] = (6.0, 3.0), hold_depth: bool = False) -> None:
     """Where each motion basis is at a time step the window just took in: a coarse search before
     the gradient refines it. The knots of the new step (and beyond, on `side` 'lo' or 'hi') start
     at constant velocity; for each basis with Gaussians near the view, offsets of (pixel_steps)
@@ -316,7 +333,8 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
     and the one with the lowest loss over `frames` (the views at t) is kept. Depth is left to the
     trajectory smoothness (MotionBases.smoothness): one view pins it poorly. Photometric gradients
     only pull an object that already overlaps its image; a search finds one that the
-    constant-velocity guess missed by a few pixels."""
+    constant-velocity guess missed by a few pixels. hold_depth: before the search each body slides
+    along the first frame's ray to the depth it had at the previous step (hold_at_depth)."""
     motion = model.motion
     if motion is None or not frames or motion.count == 0:
         return
@@ -354,6 +372,10 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
         speed = 0.0
         if 0 <= k_prev < knots:
             speed = float((motion.translation[b, k] - motion.translation[b, k_prev]).norm()) * cam.fx / depth
+            if hold_depth:
+                prev, _ = apply_motion(g["means"][sel], g["quats"][sel], g["motion_basis"][sel], gate[sel], motion,
+                                       k_prev / (knots - 1))
+                centre, depth = hold_at_depth(search, b, rows, cam, centre, depth, prev, gate[sel], w)
         steps = [max(s, 0.5 ** i * 0.5 * speed) for i, s in enumerate(pixel_steps)]
         for s in steps:
             group = [(i * s * depth / cam.fx) * rot[0] + (j * s * depth / cam.fy) * rot[1]

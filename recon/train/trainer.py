@@ -266,7 +266,8 @@ class Trainer:
             continue_beyond(self.model, *self.window.span())
             if self.cfg.curriculum.search and self.model.motion is not None:
                 for side, when in taken_in:
-                    place_bases(self.model, frames_at(self.scene, self.cfg.model.modalities, when), when, side)
+                    place_bases(self.model, frames_at(self.scene, self.cfg.model.modalities, when), when, side,
+                                hold_depth=self.cfg.curriculum.hold_depth)
         if self.held is not None:
             t = self.train_times[int(torch.randint(len(self.train_times), (1,), generator=self.gen))]
         else:
