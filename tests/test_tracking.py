@@ -160,14 +160,13 @@ def test_holding_depth_slides_a_body_along_the_ray_to_its_previous_depth(scene):
             weight = torch.sigmoid(g["opacity_rgb"][sel]) * gate[sel]
             motion.translation[b, rows] += 0.3 * rot[2]          # a guess 0.3 m deeper than it should be
             search = BodySearch(model, frames, t)
-            means, _ = apply_motion(g["means"][sel], g["quats"][sel], g["motion_basis"][sel], gate[sel], motion, t)
-            prev, _ = apply_motion(g["means"][sel], g["quats"][sel], g["motion_basis"][sel], gate[sel], motion,
-                                   (k - 1) / (knots - 1))
-            centre = (means * weight[:, None]).sum(0) / weight.sum()
+            def means_at(s: float) -> torch.Tensor:           # body b's Gaussians at time s
+                return apply_motion(g["means"][sel], g["quats"][sel], g["motion_basis"][sel], gate[sel], motion, s)[0]
+            prev = means_at((k - 1) / (knots - 1))
+            centre = (means_at(t) * weight[:, None]).sum(0) / weight.sum()
             depth = float(rot[2] @ centre + tr[2])
             _, new_depth = hold_at_depth(search, b, rows, cam, centre, depth, prev, gate[sel], weight)
-            after, _ = apply_motion(g["means"][sel], g["quats"][sel], g["motion_basis"][sel], gate[sel], motion, t)
-            centre2 = (after * weight[:, None]).sum(0) / weight.sum()
+            centre2 = (means_at(t) * weight[:, None]).sum(0) / weight.sum()
             z_prev = float(rot[2] @ ((prev * weight[:, None]).sum(0) / weight.sum()) + tr[2])
             if abs(depth - z_prev) < 0.05:
                 continue

@@ -318,7 +318,7 @@ def hold_at_depth(search: BodySearch, b: int, knots: torch.Tensor, camera, centr
     mean_gate = float((gate * weight).sum() / weight.sum())
     if z_prev <= 1e-3 or mean_gate < 0.05:
         return centre, depth
-    shift = (z_prev / depth - 1.0) * (centre + rot.T @ tr)     # centre - eye, scaled: along the ray
+    shift = (z_prev / depth - 1.0) * (centre - camera.center)      # along the ray
     search.move(b, knots, shift / mean_gate)
     return centre + shift, z_prev
 
