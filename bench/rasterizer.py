@@ -120,7 +120,7 @@ def _breakdown(w, reps, threads) -> dict:
     from recon.splat import _native
 
     a = lambda t: t.detach().numpy()  # noqa: E731
-    cam = (w.fx, w.fy, w.cx, w.cy, w.width, w.height, 0.01)
+    cam = _intrinsics(w)
     g = (a(w.means), a(w.quats), a(w.log_scales))
     vm = a(w.viewmats[0])
     stage = {}
@@ -193,7 +193,7 @@ def _bench_our_projection(w, reps, threads):
     from recon.splat.rasterization import project
 
     params, views = _projection_inputs(w, torch)
-    cam = (w.fx, w.fy, w.cx, w.cy, w.width, w.height, 0.01)
+    cam = _intrinsics(w)
 
     def run(rep):  # what rasterization() runs before compositing: one fused native pass
         means2d, conics, depths, _, colors = project(*params, views[rep], cam, 3, threads)
@@ -296,12 +296,19 @@ def _bench_train_step(w, reps, threads):
     return _timed(forward, reps), _timed(step, reps), {}
 
 
+def _intrinsics(w) -> tuple:
+    """The native projection's camera tuple for the workload's whole view (fx .. near_plane, window)."""
+    from recon.splat.rasterization import intrinsics
+
+    return intrinsics(w.fx, w.fy, w.cx, w.cy, w.width, w.height, 0.01)
+
+
 def _raster_inputs(w, torch, threads) -> list[tuple]:
     """Per view: our projection of its visible Gaussians -> (means2d (M,2), conics (M,3), colors (M,3),
     opacities (M,), depths (M,)), the inputs both rasterizer-only records composite."""
     from recon.splat.rasterization import project
 
-    cam = (w.fx, w.fy, w.cx, w.cy, w.width, w.height, 0.01)
+    cam = _intrinsics(w)
     views = []
     with torch.no_grad():
         for view in w.viewmats:
@@ -503,7 +510,7 @@ def main(argv=None) -> int:
         p.error("--out is required")
     if args.reps < 5:
         p.error("--reps must be >= 5 (median of at least 5)")
-    records = []
+    records, failed = [], []
     for impl in args.impls.split(","):
         if impl not in WORKERS:
             p.error(f"unknown implementation {impl!r}; choose from {', '.join(WORKERS)}")
@@ -526,6 +533,7 @@ def main(argv=None) -> int:
             run = subprocess.run(cmd, capture_output=True, text=True, env=env)
             if run.returncode != 0:
                 print(f"FAILED:\n{run.stderr[-2000:]}", flush=True)
+                failed.append(f"{impl} n={n}")
                 continue
             record = json.loads(run.stdout.strip().splitlines()[-1])
             records.append(record)
@@ -534,6 +542,9 @@ def main(argv=None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(records, indent=1) + "\n")
     print(f"wrote {len(records)} records to {args.out}")
+    if failed:  # a partial result must not pass for a whole one
+        print(f"rasterizer.py: {len(failed)} measurement(s) failed: {', '.join(failed)}", file=sys.stderr)
+        return 1
     return 0
 
 
