@@ -97,6 +97,23 @@ def test_ssim_is_differentiable_and_a_usable_loss():
     assert float(ssim(pred, target).detach()) > start + 0.3
 
 
+def test_ssim_analytic_backward_equals_autograd_through_the_map():
+    """ssim() (no mask) has its own backward (the blur is self-adjoint); it must give autograd's
+    gradients through ssim_map, for either input, any channel count and batch, in float32 too."""
+    torch.manual_seed(1)
+    for shape, dtype, tol in [((2, 19, 23, 3), torch.float64, 1e-12), ((120, 160, 3), torch.float32, 1e-5),
+                              ((30, 20, 1), torch.float32, 1e-5)]:
+        a = torch.rand(*shape, dtype=dtype, requires_grad=True)
+        b = torch.rand(*shape, dtype=dtype, requires_grad=True)
+        ga, gb = torch.autograd.grad(ssim(a, b), (a, b))
+        ra, rb = torch.autograd.grad(ssim_map(a, b).mean(), (a, b))
+        for g, r in ((ga, ra), (gb, rb)):
+            assert float((g - r).norm() / r.norm()) < tol, shape
+    a = torch.rand(9, 11, 2, dtype=torch.float64, requires_grad=True)
+    b = torch.rand(9, 11, 2, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(ssim, (a, b))
+
+
 def test_masks_select_pixels_and_batches_average():
     a, b = torch.rand(16, 20, 3), torch.rand(16, 20, 3)
     mask = torch.zeros(16, 20, dtype=torch.bool)

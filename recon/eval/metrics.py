@@ -100,8 +100,52 @@ def ssim_map(a, b, convention: str = "3dgs") -> torch.Tensor:
     return (num / den).permute(0, 2, 3, 1)
 
 
+class _MeanSSIM(torch.autograd.Function):
+    """Mean SSIM ('3dgs' convention) of a, b: (B, C, H, W), with its analytic backward.
+
+    The zero-padded Gaussian blur G is self-adjoint (a symmetric kernel), so with S the SSIM map,
+    dS/da = G(dS/dmu_a) + 2a G(dS/ds_aa) + b G(dS/ds_ab) (the form of fused-ssim, Mallick et al.):
+    one blur of the 5C statistics forward and one of 3C channels back. Autograd through ssim_map
+    recorded ~35 elementwise ops on strided tensors and two depthwise-convolution backwards.
+    """
+
+    @staticmethod
+    def forward(ctx, a, b):
+        c = a.shape[1]
+        mu_a, mu_b, s_aa, s_bb, s_ab = _blur(torch.cat([a, b, a * a, b * b, a * b], 1), WINDOW // 2).split(c, 1)
+        mu_ab, mu_aa, mu_bb = mu_a * mu_b, mu_a * mu_a, mu_b * mu_b
+        a1, a2 = 2 * mu_ab + C1, 2 * (s_ab - mu_ab) + C2
+        b1, b2 = mu_aa + mu_bb + C1, (s_aa - mu_aa) + (s_bb - mu_bb) + C2
+        smap = (a1 * a2) / (b1 * b2)
+        ctx.save_for_backward(a, b, mu_a, mu_b, a1, a2, b1, b2, smap)
+        return smap.mean()
+
+    @staticmethod
+    def backward(ctx, grad):
+        a, b, mu_a, mu_b, a1, a2, b1, b2, smap = ctx.saved_tensors
+        g = grad / smap.numel()
+        den = b1 * b2
+        k = (a2 - a1) / den  # dS/dmu_a = 2 mu_b k - 2 mu_a t (t below), symmetric in b
+        t = smap * (1 / b1 - 1 / b2)
+        wanted = [need for need in ctx.needs_input_grad]
+        parts = [g * 2 * (mu_b * k - mu_a * t)] if wanted[0] else []
+        parts += [g * 2 * (mu_a * k - mu_b * t)] if wanted[1] else []
+        parts += [-g * smap / b2, g * 2 * a1 / den]  # dS/ds_aa (= dS/ds_bb), dS/ds_ab
+        c = a.shape[1]
+        blurred = _blur(torch.cat(parts, 1), WINDOW // 2).split(c, 1)
+        g_sq, g_ab = blurred[-2], blurred[-1]
+        grad_a = blurred[0] + 2 * a * g_sq + b * g_ab if wanted[0] else None
+        grad_b = blurred[-3] + 2 * b * g_sq + a * g_ab if wanted[1] else None
+        return grad_a, grad_b
+
+
 def ssim(a, b, mask=None, convention: str = "3dgs") -> torch.Tensor:
     """Mean SSIM (scalar tensor, differentiable); with a mask, the mean over masked pixels."""
+    if mask is None and convention == "3dgs":  # the training loss: analytic backward
+        a, b = _pair(a, b)
+        # (B, C, H, W) views of (B, H, W, C) memory: the depthwise blur is 3x faster channels-last
+        # than planar (2.8 against 9 ms for 15 channels at 640x480), and planar copies cost more
+        return _MeanSSIM.apply(a.permute(0, 3, 1, 2), b.permute(0, 3, 1, 2))
     smap = ssim_map(a, b, convention)
     m = _mask_bhw(mask, _bhwc(_as_tensor(a)).shape, smap.device)
     if m is None:
