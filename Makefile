@@ -16,5 +16,5 @@ test:             ## the test suite (tiny scenes; benchmarks live in bench/)
 system-deps:      ## Debian packages for the real-peer tests (run as root); tests skip without them
 	apt-get update && apt-get install -y --no-install-recommends aravis-tools libusb-1.0-0 chromium  # chromium: the status-page browser test
 
-bench-deps:       ## what the benchmarks need beyond the tests (scipy)
+bench-deps:       ## everything the benchmarks in bench/ import
 	$(PY) -m pip install -e '.[bench]'

@@ -19,6 +19,7 @@ import math
 import torch
 
 from recon.config import ModelConfig, RoutingConfig
+from recon.dtg.neighbours import knn_mean_sq_dist
 
 SH_C0 = 0.28209479177387814
 
@@ -30,17 +31,6 @@ def sh_coeffs(degree: int) -> int:
 def value_to_sh_dc(value: torch.Tensor) -> torch.Tensor:
     """Inverse of the rasterizer's colour = C0 * dc + 0.5 (degree 0)."""
     return (value - 0.5) / SH_C0
-
-
-def knn_mean_sq_dist(points: torch.Tensor, k: int = 3, chunk: int = 2048) -> torch.Tensor:
-    """Mean squared distance to the k nearest other points. points: (M, 3) -> (M,)"""
-    out = []
-    for start in range(0, points.shape[0], chunk):
-        d2 = torch.cdist(points[start:start + chunk], points).pow(2)
-        kk = min(k + 1, points.shape[0])
-        vals = d2.topk(kk, dim=1, largest=False).values[:, 1:]   # drop self
-        out.append(vals.mean(1) if vals.numel() else torch.ones(d2.shape[0]))
-    return torch.cat(out)
 
 
 def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:

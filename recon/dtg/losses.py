@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import torch
 
+from recon.dtg.neighbours import knn_indices
 from recon.eval import ssim
 
 
@@ -47,16 +48,6 @@ def gather_rows(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     advanced indexing (index_put_ with accumulate) sums repeated rows in an order that depends on
     thread timing, so training did not repeat bit for bit; index_add_ sums them in index order."""
     return x.index_select(0, index.reshape(-1)).view(*index.shape, *x.shape[1:])
-
-
-def knn_indices(points: torch.Tensor, k: int, chunk: int = 2048) -> torch.Tensor:
-    """Indices (M, k) of the k nearest other points of points (M, 3)."""
-    k = min(k, points.shape[0] - 1)
-    out = []
-    for start in range(0, points.shape[0], chunk):
-        d2 = torch.cdist(points[start:start + chunk], points)
-        out.append(d2.topk(k + 1, dim=1, largest=False).indices[:, 1:])
-    return torch.cat(out)
 
 
 class EmbeddingSmoothness:

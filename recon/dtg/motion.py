@@ -20,7 +20,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from recon.dtg.gaussians import knn_mean_sq_dist
+from recon.dtg.neighbours import knn_mean_sq_dist
 from recon.dtg.time_embedding import lerp_rows
 
 

@@ -28,7 +28,8 @@ import torch
 
 from recon.config import PriorConfig
 from recon.dtg.gaussians import quat_to_rotmat
-from recon.dtg.losses import gather_rows, knn_indices
+from recon.dtg.losses import gather_rows
+from recon.dtg.neighbours import knn_indices
 
 
 def rigidity_terms(means_c: torch.Tensor, quats_c: torch.Tensor, means_t: torch.Tensor,
