@@ -85,19 +85,25 @@ def _blur(x: torch.Tensor, padding: int) -> torch.Tensor:
     return F.conv2d(x, g.view(1, 1, 1, WINDOW).expand(c, 1, 1, WINDOW), padding=(0, padding), groups=c)
 
 
+def _ssim_terms(a: torch.Tensor, b: torch.Tensor, padding: int) -> tuple[torch.Tensor, ...]:
+    """a, b: (B, C, H, W) -> mu_a, mu_b and the SSIM map's factors a1, a2 (numerator), b1, b2
+    (denominator): SSIM = a1 a2 / (b1 b2)."""
+    c = a.shape[1]
+    mu_a, mu_b, s_aa, s_bb, s_ab = _blur(torch.cat([a, b, a * a, b * b, a * b], 1), padding).split(c, 1)
+    mu_ab, mu_aa, mu_bb = mu_a * mu_b, mu_a * mu_a, mu_b * mu_b
+    a1, a2 = 2 * mu_ab + C1, 2 * (s_ab - mu_ab) + C2
+    b1, b2 = mu_aa + mu_bb + C1, (s_aa - mu_aa) + (s_bb - mu_bb) + C2
+    return mu_a, mu_b, a1, a2, b1, b2
+
+
 def ssim_map(a, b, convention: str = "3dgs") -> torch.Tensor:
     """Per-pixel SSIM (B, H', W', C); H' = H for '3dgs', H - 10 for 'skimage' (valid region)."""
     if convention not in ("3dgs", "skimage"):
         raise ValueError(f"convention must be '3dgs' or 'skimage', got {convention!r}")
     a, b = _pair(a, b)
-    n, h, w, c = a.shape
-    x = torch.cat([a, b, a * a, b * b, a * b], dim=-1).permute(0, 3, 1, 2)
-    stats = _blur(x, WINDOW // 2 if convention == "3dgs" else 0)
-    mu_a, mu_b, aa, bb, ab = stats.split(c, dim=1)
-    var_a, var_b, cov = aa - mu_a * mu_a, bb - mu_b * mu_b, ab - mu_a * mu_b
-    num = (2 * mu_a * mu_b + C1) * (2 * cov + C2)
-    den = (mu_a * mu_a + mu_b * mu_b + C1) * (var_a + var_b + C2)
-    return (num / den).permute(0, 2, 3, 1)
+    _, _, a1, a2, b1, b2 = _ssim_terms(a.permute(0, 3, 1, 2), b.permute(0, 3, 1, 2),
+                                       WINDOW // 2 if convention == "3dgs" else 0)
+    return ((a1 * a2) / (b1 * b2)).permute(0, 2, 3, 1)
 
 
 class _MeanSSIM(torch.autograd.Function):
@@ -111,11 +117,7 @@ class _MeanSSIM(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, a, b):
-        c = a.shape[1]
-        mu_a, mu_b, s_aa, s_bb, s_ab = _blur(torch.cat([a, b, a * a, b * b, a * b], 1), WINDOW // 2).split(c, 1)
-        mu_ab, mu_aa, mu_bb = mu_a * mu_b, mu_a * mu_a, mu_b * mu_b
-        a1, a2 = 2 * mu_ab + C1, 2 * (s_ab - mu_ab) + C2
-        b1, b2 = mu_aa + mu_bb + C1, (s_aa - mu_aa) + (s_bb - mu_bb) + C2
+        mu_a, mu_b, a1, a2, b1, b2 = _ssim_terms(a, b, WINDOW // 2)
         smap = (a1 * a2) / (b1 * b2)
         ctx.save_for_backward(a, b, mu_a, mu_b, a1, a2, b1, b2, smap)
         return smap.mean()
@@ -127,15 +129,15 @@ class _MeanSSIM(torch.autograd.Function):
         den = b1 * b2
         k = (a2 - a1) / den  # dS/dmu_a = 2 mu_b k - 2 mu_a t (t below), symmetric in b
         t = smap * (1 / b1 - 1 / b2)
-        wanted = [need for need in ctx.needs_input_grad]
-        parts = [g * 2 * (mu_b * k - mu_a * t)] if wanted[0] else []
-        parts += [g * 2 * (mu_a * k - mu_b * t)] if wanted[1] else []
+        need_a, need_b = ctx.needs_input_grad
+        parts = [g * 2 * (mu_b * k - mu_a * t)] if need_a else []
+        parts += [g * 2 * (mu_a * k - mu_b * t)] if need_b else []
         parts += [-g * smap / b2, g * 2 * a1 / den]  # dS/ds_aa (= dS/ds_bb), dS/ds_ab
         c = a.shape[1]
         blurred = _blur(torch.cat(parts, 1), WINDOW // 2).split(c, 1)
         g_sq, g_ab = blurred[-2], blurred[-1]
-        grad_a = blurred[0] + 2 * a * g_sq + b * g_ab if wanted[0] else None
-        grad_b = blurred[-3] + 2 * b * g_sq + a * g_ab if wanted[1] else None
+        grad_a = blurred[0] + 2 * a * g_sq + b * g_ab if need_a else None
+        grad_b = blurred[-3] + 2 * b * g_sq + a * g_ab if need_b else None
         return grad_a, grad_b
 
 
