@@ -97,7 +97,7 @@ def landscape(trainer: Trainer, grader: Grader, j: int) -> list[dict]:
         offsets = list(OFFSETS_M) + [to_true]
         moves = [torch.tensor(o * ray, dtype=torch.float32) for o in offsets]
         plans = search.plan(b, torch.tensor([j]), moves)
-        if plans is not None and all(w == () for w, _, _ in plans):
+        if all(w == () for w, _, _ in plans):
             continue                       # the body draws in no view at this step
         losses = [search.loss(b, torch.tensor([j]), mv, plans) for mv in moves]
         rows.append({"knot": j, "body": b, "true_depth_offset_m": round(to_true, 3),

@@ -1,5 +1,6 @@
-"""The thermal network runs on the Gaussians in view only (recon.render.in_view): the render is
-the same bits as running it on every Gaussian, and so are the gradients it gives."""
+"""A thermal network that changes only opacity and temperature (dtg-mlp's F_th) runs on the
+Gaussians in view only (recon.render.in_view): the render is the same bits as running it on every
+Gaussian, and so are the gradients it gives."""
 import torch
 
 from recon import render as rendering
@@ -9,7 +10,7 @@ from tests.test_train import small_cfg, tiny
 
 def test_network_on_rows_in_view_renders_and_trains_as_on_all(tmp_path_factory, monkeypatch):
     scene = tiny(tmp_path_factory, "family-inside")
-    tr = Trainer(small_cfg(iterations=100), scene, log=lambda _: None)
+    tr = Trainer(small_cfg("dtg-mlp", iterations=100), scene, log=lambda _: None)
     for _ in range(40):
         tr.step()
     model = tr.model

@@ -227,22 +227,19 @@ def reaching(camera, g: dict[str, torch.Tensor], window: tuple) -> torch.Tensor:
 class BodySearch:
     """Renders of the model at time t with one body moved, for place_bases.
 
-    Only body b's Gaussians change between candidates, so each candidate is drawn from render
-    inputs computed once (networks, routing masks, every other Gaussian) with b's rows moved,
-    scored on the window of each frame where b draws (footprint), and drawn from the Gaussians
-    that reach that window only: the same pixels as a full render. A network that moves geometry
-    (or per-Gaussian trajectories) may move any Gaussian: then every candidate is a full render."""
+    Only body b's Gaussians change between candidates: a body moves its Gaussians after every
+    residual (networks, trajectories), and no residual depends on where a body is. So each
+    candidate is drawn from render inputs computed once (networks, routing masks, every other
+    Gaussian) with b's rows moved from their place before the bodies' motion, scored on the window
+    of each frame where b draws (footprint), and drawn from the Gaussians that reach that window
+    only: the same pixels as a full render."""
 
     def __init__(self, model, frames, t: float):
         self.model, self.frames, self.t = model, frames, t
-        g = model.gaussians
-        self.exact = "trajectory" not in g and not any(model.moves_geometry(s) for s in model.deformers)
-        self.inputs = None
-        if self.exact:
-            masks = inference_masks(model)
-            with torch.no_grad():
-                self.inputs = {m: model.render_inputs(m, t, mask=None if masks is None else masks[m])
-                               for m in {f[0] for f in frames}}
+        masks = inference_masks(model)
+        with torch.no_grad():
+            self.inputs = {m: model.render_inputs(m, t, mask=None if masks is None else masks[m])
+                           for m in {f[0] for f in frames}}
         self._rows: dict[int, torch.Tensor] = {}
 
     def rows(self, b: int) -> torch.Tensor:
@@ -250,6 +247,13 @@ class BodySearch:
         if b not in self._rows:
             self._rows[b] = (self.model.gaussians["motion_basis"].long() == b + 1).nonzero()[:, 0]
         return self._rows[b]
+
+    def before_motion(self, modality: str, idx: torch.Tensor, key: str) -> torch.Tensor:
+        """Rows idx of a geometry tensor (means, quats or log_scales) of modality's render inputs
+        before the bodies move them: canonical + the residuals that render applied."""
+        residual = self.inputs[modality]["geometry_residuals"].get(key)
+        value = self.model.gaussians[key][idx]
+        return value if residual is None else value + residual[idx]
 
     @contextmanager
     def offset(self, b: int, knots: torch.Tensor, offset: torch.Tensor):
@@ -262,24 +266,23 @@ class BodySearch:
         finally:
             translation[b, knots] = saved
 
-    def moved(self, b: int, knots: torch.Tensor, offset: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Body b's Gaussians (means, quats) at t with offset (3,) added to its translation knots."""
+    def moved(self, modality: str, b: int, knots: torch.Tensor,
+              offset: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Body b's Gaussians (means, quats) in modality's render at t with offset (3,) added to its
+        translation knots."""
         model, g, idx = self.model, self.model.gaussians, self.rows(b)
         with self.offset(b, knots, offset):
-            return apply_motion(g["means"][idx], g["quats"][idx], g["motion_basis"][idx], model.dynamic_gate(idx),
-                                model.motion, self.t)
+            return apply_motion(self.before_motion(modality, idx, "means"), self.before_motion(modality, idx, "quats"),
+                                g["motion_basis"][idx], model.dynamic_gate(idx), model.motion, self.t)
 
-    def plan(self, b: int, knots: torch.Tensor, offsets: list[torch.Tensor]) -> list | None:
+    def plan(self, b: int, knots: torch.Tensor, offsets: list[torch.Tensor]) -> list:
         """Per frame, (window where body b draws as it is or with any of offsets, the rows of the
-        render inputs that reach it, body b's places among those rows); None: whole frames."""
-        if not self.exact:
-            return None
+        render inputs that reach it, body b's places among those rows)."""
         idx = self.rows(b)
-        positions = [self.moved(b, knots, o) for o in [torch.zeros(3)] + offsets]
-        scales = self.model.gaussians["log_scales"][idx]
         plans = []
         for modality, camera, _, _ in self.frames:
-            window = footprint(camera, positions, scales)
+            positions = [self.moved(modality, b, knots, o) for o in [torch.zeros(3)] + offsets]
+            window = footprint(camera, positions, self.before_motion(modality, idx, "log_scales"))
             if window == ():
                 plans.append(((), None, None))
                 continue
@@ -288,22 +291,18 @@ class BodySearch:
             plans.append((window, {k: inp[k][sub] for k in PER_GAUSSIAN}, torch.searchsorted(sub, idx)))
         return plans
 
-    def loss(self, b: int, knots: torch.Tensor, offset: torch.Tensor, plans: list | None) -> float:
+    def loss(self, b: int, knots: torch.Tensor, offset: torch.Tensor, plans: list) -> float:
         """window_loss with body b's translation knots moved by offset (3,)."""
-        if plans is None:
-            with self.offset(b, knots, offset):
-                return window_loss(self.model, self.frames, self.t)
-        means, _ = self.moved(b, knots, offset)
-        inputs = [None if g is None else {**g, "means": g["means"].index_copy(0, pos, means)} for _, g, pos in plans]
+        inputs = [None if g is None else {**g, "means": g["means"].index_copy(0, pos, self.moved(m, b, knots, offset)[0])}
+                  for (_, g, pos), (m, *_) in zip(plans, self.frames)]
         return window_loss(self.model, self.frames, self.t, [w for w, _, _ in plans], inputs)
 
     def move(self, b: int, knots: torch.Tensor, offset: torch.Tensor) -> None:
         """Keep offset: body b's knots move, and so do its rows of the cached inputs."""
         self.model.motion.translation.data[b, knots] += offset
-        if self.exact:
-            idx, (means, _) = self.rows(b), self.moved(b, knots, torch.zeros(3))
-            for inp in self.inputs.values():
-                inp["means"] = inp["means"].index_copy(0, idx, means)
+        idx = self.rows(b)
+        for modality, inp in self.inputs.items():
+            inp["means"] = inp["means"].index_copy(0, idx, self.moved(modality, b, knots, torch.zeros(3))[0])
 
 
 def hold_at_depth(search: BodySearch, b: int, knots: torch.Tensor, camera, centre: torch.Tensor, depth: float,
