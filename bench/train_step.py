@@ -3,8 +3,10 @@
     python bench/train_step.py --out bench/results/train_step
     python bench/train_step.py --out /tmp/ts --sizes 160x120:10000 --methods dtg,dtg-mlp --steps 40
     python bench/train_step.py --out /tmp/ts --sizes 640x480:100000,640x480:100000@0.5 --methods dtg
+    python bench/train_step.py --out /tmp/ts --sizes 160x120:10000 --methods dtg,dtg-nogeo \
+        --variant 'dtg-nogeo=dtg:{"model.deform_geometry": []}'
 
-For each (method, size W x H : N Gaussians) a simulated family scene (10 time steps) is trained
+For each (method or --variant, size W x H : N Gaussians) a simulated family scene (10 time steps) is trained
 with N initial points and no densification (N stays fixed), on whole frames or with @F on random
 windows of F x each side (`recon run --crop F`); after --warmup iterations, --steps
 iterations are timed. Each component is timed *exclusively* (time inside a nested component is
@@ -29,11 +31,13 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 from recon.config import make_config  # noqa: E402
 from recon.data import load_dataset  # noqa: E402
 from recon.data.simulate import SimulateConfig, simulate_dataset  # noqa: E402
 from recon.scene import Scene  # noqa: E402
 from recon.train.trainer import Trainer  # noqa: E402
+from table import apply_overrides, parse_variant  # noqa: E402
 
 
 class Timers:
@@ -87,15 +91,17 @@ def instrument(t: Timers) -> None:
     t.wrap(trainer, "place_bases", "window body search")
 
 
-def measure(method: str, width: int, height: int, n: int, crop: float, steps: int, warmup: int, threads: int,
+def measure(method: str, variant: tuple[str, dict], width: int, height: int, n: int, crop: float, steps: int, warmup: int, threads: int,
             work: Path) -> dict:
     data = work / f"fam-{width}x{height}-{n}"
     if not (data / "transforms.json").exists():
         simulate_dataset(data, SimulateConfig(variant="family-inside", frames=10, width=width, height=height,
                                               seed=0, points=n))
     scene = Scene(load_dataset(data))
-    cfg = make_config(method, iterations=3000, threads=threads, log_every=10**9, checkpoint_every=10**9,
+    base, overrides = variant
+    cfg = make_config(base, iterations=3000, threads=threads, log_every=10**9, checkpoint_every=10**9,
                       eval_every=10**9, max_points=n)
+    apply_overrides(cfg, overrides)
     cfg.densify.start = 2.0                 # never: N stays fixed
     cfg.stop.converge = False
     cfg.crop = crop
@@ -135,13 +141,16 @@ def markdown(rows: list[dict]) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--methods", default="dtg,dtg-mlp")
+    ap.add_argument("--methods", default="dtg,dtg-mlp", help="methods (comma-separated), or --variant names")
+    ap.add_argument("--variant", action="append", default=[], metavar="NAME=METHOD:JSON",
+                    help='a method with config overrides, e.g. \'dtg-nogeo=dtg:{"model.deform_geometry": []}\' (repeatable)')
     ap.add_argument("--sizes", default="160x120:10000,320x240:50000,640x480:100000",
                     help="W x H : Gaussians [@ crop fraction], comma-separated")
     ap.add_argument("--steps", type=int, default=30)
     ap.add_argument("--warmup", type=int, default=10)
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
+    variants = dict(parse_variant(v) for v in args.variant)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -150,7 +159,7 @@ def main() -> int:
             wh, n = size.split(":")
             w, h = (int(v) for v in wh.split("x"))
             for method in args.methods.split(","):
-                row = measure(method, w, h, int(n), float(crop or 1), args.steps, args.warmup, args.threads,
+                row = measure(method, variants.get(method, (method, {})), w, h, int(n), float(crop or 1), args.steps, args.warmup, args.threads,
                               Path(tmp))
                 rows.append(row)
                 print(f"{method} {w}x{h} crop {row['crop']:g} {row['gaussians']} Gaussians: "
