@@ -279,10 +279,10 @@ class BodySearch:
         """Per frame, (window where body b draws as it is or with any of offsets, the rows of the
         render inputs that reach it, body b's places among those rows)."""
         idx = self.rows(b)
+        positions = {m: [self.moved(m, b, knots, o) for o in [torch.zeros(3)] + offsets] for m in self.inputs}
         plans = []
         for modality, camera, _, _ in self.frames:
-            positions = [self.moved(modality, b, knots, o) for o in [torch.zeros(3)] + offsets]
-            window = footprint(camera, positions, self.before_motion(modality, idx, "log_scales"))
+            window = footprint(camera, positions[modality], self.before_motion(modality, idx, "log_scales"))
             if window == ():
                 plans.append(((), None, None))
                 continue
@@ -293,7 +293,8 @@ class BodySearch:
 
     def loss(self, b: int, knots: torch.Tensor, offset: torch.Tensor, plans: list) -> float:
         """window_loss with body b's translation knots moved by offset (3,)."""
-        inputs = [None if g is None else {**g, "means": g["means"].index_copy(0, pos, self.moved(m, b, knots, offset)[0])}
+        means = {m: self.moved(m, b, knots, offset)[0] for m in self.inputs}
+        inputs = [None if g is None else {**g, "means": g["means"].index_copy(0, pos, means[m])}
                   for (_, g, pos), (m, *_) in zip(plans, self.frames)]
         return window_loss(self.model, self.frames, self.t, [w for w, _, _ in plans], inputs)
 
