@@ -11,11 +11,12 @@ from pathlib import Path
 import pytest
 import torch
 
-from recon.batch.execute import run_argv
+from recon.batch.execute import execute_job, run_argv
 from recon.batch.jobs import expand, parse_seeds
 from recon.batch.ray_runner import run_batch
 from recon.cli import main as recon_main
 from recon.data.simulate import SimulateConfig, simulate_dataset
+from recon.train.guard import TrainingDiverged
 
 ray = pytest.importorskip("ray")
 from ray.cluster_utils import Cluster  # noqa: E402
@@ -34,6 +35,21 @@ def test_jobs_are_named_by_input_method_seed(tmp_path):
     assert parse_seeds("0-2,7") == [0, 1, 2, 7]
     with pytest.raises(ValueError, match="--seeds"):
         parse_seeds("zero")
+
+
+def test_a_job_that_diverged_says_so_and_a_bug_is_an_internal_error(tmp_path):
+    def diverges(job, run_dir, resume):
+        raise TrainingDiverged("training diverged at iteration 7: thermal loss rose (3 rollbacks already)")
+
+    def breaks(job, run_dir, resume):
+        raise KeyError("means")
+
+    job = {"name": "data/dtg-s0", "input": str(tmp_path / "data"), "method": "dtg", "seed": 0}
+    first = execute_job(job, str(tmp_path / "runs"), work=diverges)
+    assert first["state"] == "failed"
+    assert first["error"].startswith("training diverged at iteration 7"), first["error"]
+    second = execute_job({**job, "name": "data/dtg-s1"}, str(tmp_path / "runs"), work=breaks)
+    assert second["error"] == "internal error: KeyError: 'means'"
 
 
 def test_cli_refuses_a_folder_that_is_not_an_input_before_starting_ray(tmp_path, capsys):

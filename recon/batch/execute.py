@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Callable
 
 from recon.batch.jobs import Job, has_checkpoint, read_json
+from recon.train.guard import TrainingDiverged
 from rig.session import write_json_atomic
 
 RESUMED = re.compile(r"resumed at iteration (\d+)")
@@ -81,6 +82,8 @@ def execute_job(job: dict, runs: str, work: Callable[[Job, Path, bool], int] = r
         except SystemExit as exc:           # recon run's loud failures (a divergence it could not recover)
             code = exc.code if isinstance(exc.code, int) else 1
             message = None if isinstance(exc.code, int) else str(exc.code)
+        except TrainingDiverged as exc:     # the same, from work that trains without recon run's CLI
+            code, message = 1, str(exc)
         except Exception as exc:            # noqa: BLE001 - reported in job.json, not raised into Ray
             code, message = 1, f"internal error: {type(exc).__name__}: {exc}"
         if message:
