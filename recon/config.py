@@ -153,6 +153,11 @@ class LossConfig:
     # instead of letting the background through in novel views (+1.7 dB RGB on the simulator's
     # test rig at 2000 it; on thermal the same trick cost 0.7 dB, so temperature keeps its own).
     random_background_rgb: float = 0.5
+    # Depth anchors (recon/train/anchors.py): weights of the relative depth error of the RGB render
+    # at the initial points each view sees with its own colour, static points and points of moving
+    # objects (at the instant they were recorded) each a mean of their own; 0: off.
+    point_depth_static: float = 0.0
+    point_depth_moving: float = 0.0
 
 
 @dataclass

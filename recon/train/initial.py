@@ -13,6 +13,7 @@ from recon.dtg.motion import body_clusters, body_radii
 from recon.dtg.points import (changing_points, colour_seen_fraction, initial_temperatures, observed_time,
                                sample_views, transient_points)
 from recon.scene import Scene
+from recon.train.anchors import DepthAnchors, find_anchors
 from recon.sfm import points_from_frames
 
 
@@ -63,6 +64,18 @@ def body_candidates(cfg: TrainConfig, scene: Scene, pts: torch.Tensor, rgb: torc
     project, or their own colour is seen only now and then): held out of the static warm-up."""
     m = cfg.model
     return changing_points(scene, pts, m.split_rgb, m.split_kelvin, m.split_fraction) | transient_points(scene, pts, rgb)
+
+
+def depth_anchors(cfg: TrainConfig, scene: Scene) -> DepthAnchors | None:
+    """The initial points as depth anchors of the RGB training views (recon/train/anchors.py),
+    or None when both LossConfig.point_depth weights are 0 or there are no RGB training views. The points are
+    initial_model's (same seed), before any are held out or dropped as ghosts."""
+    if max(cfg.loss.point_depth_static, cfg.loss.point_depth_moving) <= 0 or not scene.train["rgb"]:
+        return None
+    pts, rgb = initial_points(cfg, scene, torch.Generator().manual_seed(cfg.seed))
+    m = cfg.model
+    changing = changing_points(scene, pts, m.split_rgb, m.split_kelvin, m.split_fraction)
+    return find_anchors(scene, pts, rgb, changing)
 
 
 def held_points(cfg: TrainConfig, scene: Scene) -> tuple[torch.Tensor, torch.Tensor]:

@@ -29,7 +29,8 @@ from recon.train.resolution import downscale, factor_at, random_crop
 from recon.train.curriculum import TimeWindow, continue_beyond, frames_at, place_bases
 from recon.train.guard import DivergenceGuard, Event, TrainingDiverged, median_motion, nonfinite_parameter
 from recon.train.holdout import holdout_psnr, holdout_views
-from recon.train.initial import body_gaussians, held_points, initial_model, warm_up_iterations
+from recon.train.anchors import anchor_loss
+from recon.train.initial import body_gaussians, depth_anchors, held_points, initial_model, warm_up_iterations
 from recon.train.discover import DiscoverSettings, group_bodies, on_moving_object
 from recon.dtg.motion import MotionBases, body_radii
 from recon.dtg.strategy import append
@@ -65,6 +66,11 @@ class Trainer:
         if model is None:
             model, self.held = initial_model(cfg, scene, self.gen, self.log)
         self.model = model
+        self.anchors = depth_anchors(cfg, scene)
+        if self.anchors is not None:
+            static, moving = self.anchors.count()
+            self.log(f"depth anchors: {static} of static points and {moving} of moving ones over "
+                     f"{len(self.anchors.by_view)} RGB views")
         check_params(cfg.model, dict(self.model.gaussians))
         self.optimizer = build_optimizer(self.cfg, self.model, self.extent)
         if not cfg.densify.max_gaussians:
@@ -216,6 +222,15 @@ class Trainer:
             rec = self.cfg.loss.thermal_l1 * thermal_loss(image[..., 0], target, valid)
         if regularise:
             reg = reg + self._regularisers(stats)
+        if modality == "rgb" and self.anchors is not None:
+            # a moving point anchors only where its body has been placed: inside the window
+            placed = self.held is None and self.window.contains(t)
+            weights = {"static": self.cfg.loss.point_depth_static, "moving": self.cfg.loss.point_depth_moving}
+            for group, err in anchor_loss(self.anchors, str(view.frame.file_path), camera, out.depth, out.alpha,
+                                          moving=placed and weights["moving"] > 0).items():
+                if weights[group] > 0:
+                    reg = reg + weights[group] * err
+                    stats[f"anchor_{group}"] = float(err.detach())
         if self.priors.enabled and self.model.stage_of(modality) == self.model.motion_stage():
             reg = reg + self._motion_priors(g, t, p, stats)
         loss = rec + reg
