@@ -158,6 +158,7 @@ class LossConfig:
     # objects (at the instant they were recorded) each a mean of their own; 0: off.
     point_depth_static: float = 0.0
     point_depth_moving: float = 0.0
+    point_depth_tolerance: float = 0.0   # relative depth error that costs nothing
 
 
 @dataclass

@@ -68,12 +68,15 @@ def find_anchors(scene: Scene, points: torch.Tensor, colors: torch.Tensor, chang
 
 
 def anchor_loss(anchors: DepthAnchors, frame_path: str, camera, depth: torch.Tensor, alpha: torch.Tensor,
-                moving: bool = True) -> dict[str, torch.Tensor]:
-    """Mean relative depth error |D - z| / z at one view's anchors where the render is opaque
-    (alpha > 0.5), static and moving points each a mean of their own (a few points on the moving
-    objects would weigh nothing beside thousands on the static scene). camera: the render's
-    (downscaled, cropped) camera; depth, alpha (H, W) its rasterizer output. moving=False: static
-    anchors only. -> {"static": loss, "moving": loss}, a group without anchors in the render left out."""
+                moving: bool = True, tolerance: float = 0.0) -> dict[str, torch.Tensor]:
+    """Mean relative depth error max(|D - z| / z - tolerance, 0) at one view's anchors where the
+    render is opaque (alpha > 0.5), static and moving points each a mean of their own (a few points
+    on the moving objects would weigh nothing beside thousands on the static scene). The rendered
+    depth blends the camera depths of Gaussians' centres, not where the ray meets them: a flat
+    Gaussian seen at a grazing angle is off by a share of its size, which `tolerance` forgives.
+    camera: the render's (downscaled, cropped) camera; depth, alpha (H, W) its rasterizer output.
+    moving=False: static anchors only. -> {"static": loss, "moving": loss}, a group without anchors
+    in the render left out."""
     idx = anchors.by_view.get(frame_path)
     if idx is None or len(idx) == 0:
         return {}
@@ -82,7 +85,7 @@ def anchor_loss(anchors: DepthAnchors, frame_path: str, camera, depth: torch.Ten
     u, v, z, ok = project(camera, anchors.points[idx])
     uu, vv = u.clamp(0, camera.width - 1), v.clamp(0, camera.height - 1)
     ok &= alpha.detach()[vv, uu] > 0.5
-    err = (depth[vv, uu] - z).abs() / z.clamp_min(1e-6)
+    err = ((depth[vv, uu] - z).abs() / z.clamp_min(1e-6) - tolerance).clamp_min(0.0)
     groups = anchors.moving[idx]
     parts = {"static": ok & ~groups, "moving": ok & groups}
     return {name: err[part].mean() for name, part in parts.items() if bool(part.any())}

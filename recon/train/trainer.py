@@ -227,7 +227,8 @@ class Trainer:
             placed = self.held is None and self.window.contains(t)
             weights = {"static": self.cfg.loss.point_depth_static, "moving": self.cfg.loss.point_depth_moving}
             for group, err in anchor_loss(self.anchors, str(view.frame.file_path), camera, out.depth, out.alpha,
-                                          moving=placed and weights["moving"] > 0).items():
+                                          moving=placed and weights["moving"] > 0,
+                                          tolerance=self.cfg.loss.point_depth_tolerance).items():
                 if weights[group] > 0:
                     reg = reg + weights[group] * err
                     stats[f"anchor_{group}"] = float(err.detach())
