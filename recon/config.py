@@ -155,7 +155,9 @@ class LossConfig:
     random_background_rgb: float = 0.5
     # Depth anchors (recon/train/anchors.py): weights of the relative depth error of the RGB render
     # at the initial points each view sees with its own colour, static points and points of moving
-    # objects (at the instant they were recorded) each a mean of their own; 0: off.
+    # objects (at the instant they were recorded) each a mean of their own; 0: off. Off because on
+    # the held-out seeds (both 0.1) the thermal MAE went either way per seed by up to 1.8 K; outside
+    # the sweep RGB rose on 7 of 8 (median +0.9 dB); docs/training.md "Depth anchors".
     point_depth_static: float = 0.0
     point_depth_moving: float = 0.0
     point_depth_tolerance: float = 0.0   # relative depth error that costs nothing
