@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Callable
 
 from recon.batch.jobs import Job, has_checkpoint, read_json
-from recon.train.guard import TrainingDiverged
 from rig.session import write_json_atomic
 
 RESUMED = re.compile(r"resumed at iteration (\d+)")
@@ -62,6 +61,7 @@ def execute_job(job: dict, runs: str, work: Callable[[Job, Path, bool], int] = r
     fails on its input fails the same way on every retry). A worker that dies mid-job is
     retried by Ray, and `resume` tells the work to go on from the checkpoint it left.
     -> {name, state ("done" | "failed"), error, seconds, attempts, node, resumed_from}"""
+    from recon.train.guard import TrainingDiverged    # torch: in the worker only, as run_recon's CLI
     job = Job(**job)
     run_dir = job.run_dir(Path(runs))
     run_dir.mkdir(parents=True, exist_ok=True)
