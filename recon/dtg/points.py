@@ -26,6 +26,14 @@ def point_depth_buffer(u: torch.Tensor, v: torch.Tensor, z: torch.Tensor, ok: to
     return zbuf.view(height, width)
 
 
+def in_front(u: torch.Tensor, v: torch.Tensor, z: torch.Tensor, ok: torch.Tensor, width: int, height: int,
+             radius: int, tolerance: float) -> torch.Tensor:
+    """ok (M,) narrowed to the points (pixels u, v (M,), camera depths z (M,)) with no other point
+    of ok in front of them: none more than `tolerance` relatively nearer within `radius` pixels."""
+    zbuf = point_depth_buffer(u, v, z, ok, width, height, radius)
+    return ok & (z <= zbuf[v.clamp(0, height - 1), u.clamp(0, width - 1)] * (1 + tolerance))
+
+
 def project(camera, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Pixels of points (M, 3) in a camera: (u (M,), v (M,) integer pixel, camera z (M,), in view
     (M,) bool: in front and inside the image)."""
@@ -66,8 +74,7 @@ def sample_views(scene: Scene, views: list[View], points: torch.Tensor, occlusio
         if valid is not None:
             ok &= valid[vv, uu]
         if occlusion_radius > 0:
-            zbuf = point_depth_buffer(u, v, z, ok, cam.width, cam.height, occlusion_radius)
-            ok &= z <= zbuf[vv, uu] * (1 + occlusion_tolerance)
+            ok = in_front(u, v, z, ok, cam.width, cam.height, occlusion_radius, occlusion_tolerance)
         values.append(target[vv, uu])
         seen.append(ok)
     return torch.stack(values), torch.stack(seen)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import torch
 
-from recon.dtg.points import colour_distance, point_depth_buffer, project
+from recon.dtg.points import colour_distance, in_front, project
 from recon.scene import Scene
 
 
@@ -53,9 +53,7 @@ def find_anchors(scene: Scene, points: torch.Tensor, colors: torch.Tensor, chang
         target, _ = scene.target(view)
         cam = view.camera
         u, v, z, ok = project(cam, points)
-        zbuf = point_depth_buffer(u, v, z, ok, cam.width, cam.height, occlusion_radius)
-        uu, vv = u.clamp(0, cam.width - 1), v.clamp(0, cam.height - 1)
-        ok &= z <= zbuf[vv, uu] * (1 + occlusion_tolerance)
+        ok = in_front(u, v, z, ok, cam.width, cam.height, occlusion_radius, occlusion_tolerance)
         distance[i] = torch.where(ok, colour_distance(target, u, v, colors, radius=1), torch.inf)
     match = distance < tolerance
     times = torch.tensor([v.time for v in views])
