@@ -96,6 +96,10 @@ class ModelConfig:
     # seeds inside 3.81 -> 3.62 K, outside 2.17 -> 2.34 K (bench/results/family-motion2): off
     basis_gate_static: float | None = None
     basis_static_share: float = 0.6
+    # With bodies, the geometry residuals of a network (F_th in `dtg`) move only the bodies'
+    # Gaussians (times their gate): the static scene keeps one place in every modality, and the
+    # network runs on the bodies and the static Gaussians in view only.
+    geometry_on_bodies: bool = False
     body_reach: float = 0.0          # a body's Gaussians stay within this x its farthest initial point
                                      # of its pivot (MotionBases.keep_within); 0: unbounded
     # A bias on the deformation's geometry outputs moves every Gaussian alike. Adam moves it by

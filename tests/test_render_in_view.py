@@ -34,3 +34,37 @@ def test_network_on_rows_in_view_renders_and_trains_as_on_all(tmp_path_factory, 
         assert 0 < rows.numel() < model.num_gaussians      # some Gaussians are out of view
         touched = ga.abs().sum(1).nonzero().view(-1)
         assert set(touched.tolist()) <= set(rows.tolist())
+
+
+def test_thermal_geometry_on_bodies_moves_bodies_only_and_renders_as_on_all(tmp_path_factory, monkeypatch):
+    """ModelConfig.geometry_on_bodies: F_th's geometry residuals move the bodies' Gaussians only
+    (the static scene is where the RGB render puts it), and F_th runs on the bodies and the static
+    Gaussians in view: the same render and gradients as running it on every Gaussian."""
+    scene = tiny(tmp_path_factory, "family-inside")
+    cfg = small_cfg("dtg", iterations=100)
+    cfg.model.geometry_on_bodies = True
+    tr = Trainer(cfg, scene, log=lambda _: None)
+    for _ in range(60):
+        tr.step()
+    model = tr.model
+    static = model.gaussians["motion_basis"] == 0
+    assert model.moves_geometry("thermal") and 0 < int((~static).sum()) < model.num_gaussians
+    view = scene.train["thermal"][len(scene.train["thermal"]) // 2]
+    grads = []
+    for narrow in (True, False):
+        g = model.gaussians["embedding_thermal"]
+        g.grad = None
+        if not narrow:
+            monkeypatch.setattr(rendering, "in_view", lambda camera, threads=None: None)
+        image, _, geo = rendering.render(model, "thermal", view.time, view.camera)
+        monkeypatch.undo()
+        (image * torch.linspace(0, 1, image.numel()).view_as(image)).sum().backward()
+        grads.append((image.detach(), g.grad.clone(), geo["geometry_residuals"]["means"].detach()))
+    (a, ga, ra), (b, gb, rb) = grads
+    assert torch.allclose(a, b, atol=1e-6), (a - b).abs().max()
+    assert torch.allclose(ga, gb, atol=1e-7), (ga - gb).abs().max()
+    assert torch.equal(ra, rb)
+    assert ra[static].abs().max() == 0                      # the static scene takes no thermal residual
+    assert ra[~static].abs().max() > 0                      # the bodies do
+    moved = model.means_at("thermal", view.time, 1.0, torch.nonzero(static).view(-1))
+    assert torch.equal(moved, model.gaussians["means"][static])

@@ -93,6 +93,14 @@ class DTGModel(nn.Module):
         to know where it is)."""
         return stage in self.deformers and any(k in self.deformers[stage].outputs for k in GEOMETRY)
 
+    def body_geometry_gate(self, stage: str) -> torch.Tensor | None:
+        """(N,) what a stage's geometry residuals are multiplied by when only the bodies' Gaussians
+        may take them (ModelConfig.geometry_on_bodies): each body member's dynamic gate, 0 for
+        static Gaussians; None when every Gaussian takes them."""
+        if not (self.cfg.geometry_on_bodies and self.motion is not None and self.moves_geometry(stage)):
+            return None
+        return self.dynamic_gate() * (self.gaussians["motion_basis"] > 0)
+
     def motion_stage(self) -> str | None:
         """The deformation stage whose geometry every modality's render builds on ('shared',
         'rgb' or 'thermal'), or None for a static model: where the motion priors apply."""
@@ -117,6 +125,9 @@ class DTGModel(nn.Module):
             key = "embedding" if stage == "shared" else f"embedding_{stage}"
             res = self.deformers[stage](self.time_embedding(t, progress), self.gaussians[key][index])
             moved = res["means"]
+            body_gate = self.body_geometry_gate(stage)
+            if body_gate is not None:
+                moved = moved * body_gate[index, None]
         if "trajectory" in self.gaussians:
             moved = moved + lerp_rows(self.gaussians["trajectory"][index], t, dim=1)
         if "dynamic_logit" in self.gaussians and self.motion is None:
@@ -159,16 +170,24 @@ class DTGModel(nn.Module):
             stage = "shared" if cfg.deformation == "shared" else modality
             # a network that changes only opacity and features runs after the geometry, on the rows in view
             later = in_view is not None and stage in self.deformers and not self.moves_geometry(stage)
-            res = {} if later else self.stage_residuals(stage, t, progress)
+            body_gate = self.body_geometry_gate(stage)
+            rows = None
+            if body_gate is not None and in_view is not None and "trajectory" not in g:
+                # only bodies move: the static rows in view are known before the network runs
+                canonical = in_view({k: v.detach() for k, v in geo.items()})
+                rows = torch.unique(torch.cat([canonical, torch.nonzero(body_gate).view(-1)]))
+            res = {} if later else self.stage_residuals(stage, t, progress, rows=rows)
             res = {**{k: torch.zeros_like(geo[k]) for k in GEOMETRY}, **res}
             applied = {k: res[k] for k in GEOMETRY}
+            if body_gate is not None:
+                applied = {k: v * body_gate[:, None] for k, v in applied.items()}
             if cfg.deformation == "progressive" and modality == "thermal" and "rgb" in cfg.modalities:
                 first = rgb_geometry if rgb_geometry is not None else {
                     k: v for k, v in self.stage_residuals("rgb", t, progress).items() if k in GEOMETRY}
                 first = {k: first.get(k, torch.zeros_like(geo[k])) for k in GEOMETRY}
                 if not cfg.thermal_grad_to_rgb_deformation:
                     first = {k: v.detach() for k, v in first.items()}
-                applied = {k: first[k] + res[k] for k in GEOMETRY}
+                applied = {k: first[k] + applied[k] for k in GEOMETRY}
             if "trajectory" in g:       # shared by every modality, trained by every loss
                 applied = {**applied, "means": applied["means"] + lerp_rows(g["trajectory"], t, dim=1)}
             if "dynamic_logit" in g and self.motion is None:
