@@ -8,6 +8,22 @@ from recon.train.trainer import Trainer
 from tests.test_train import small_cfg, tiny
 
 
+def narrow_and_wide(model, t, camera, monkeypatch):
+    """[(thermal image, F_th embeddings' gradient, render inputs)] rendered with F_th on the rows
+    in view, then on every Gaussian."""
+    out = []
+    for narrow in (True, False):
+        g = model.gaussians["embedding_thermal"]
+        g.grad = None
+        if not narrow:
+            monkeypatch.setattr(rendering, "in_view", lambda camera, threads=None: None)
+        image, _, geo = rendering.render(model, "thermal", t, camera)
+        monkeypatch.undo()
+        (image * torch.linspace(0, 1, image.numel()).view_as(image)).sum().backward()
+        out.append((image.detach(), g.grad.clone(), geo))
+    return out
+
+
 def test_network_on_rows_in_view_renders_and_trains_as_on_all(tmp_path_factory, monkeypatch):
     scene = tiny(tmp_path_factory, "family-inside")
     tr = Trainer(small_cfg("dtg-mlp", iterations=100), scene, log=lambda _: None)
@@ -17,17 +33,7 @@ def test_network_on_rows_in_view_renders_and_trains_as_on_all(tmp_path_factory, 
     assert not model.moves_geometry("thermal") and "thermal" in model.deformers
     view = scene.train["thermal"][0]
     for camera in (view.camera, view.camera.crop(10, 6, 24, 18)):
-        grads = []
-        for narrow in (True, False):
-            g = model.gaussians["embedding_thermal"]
-            g.grad = None
-            if not narrow:
-                monkeypatch.setattr(rendering, "in_view", lambda camera, threads=None: None)
-            image, _, geo = rendering.render(model, "thermal", view.time, camera)
-            monkeypatch.undo()
-            (image * torch.linspace(0, 1, image.numel()).view_as(image)).sum().backward()
-            grads.append((image.detach(), g.grad.clone()))
-        (a, ga), (b, gb) = grads
+        (a, ga, geo), (b, gb, _) = narrow_and_wide(model, view.time, camera, monkeypatch)
         assert torch.equal(a, b)
         assert torch.allclose(ga, gb, atol=1e-7), (ga - gb).abs().max()
         rows = rendering.in_view(camera)({k: geo[k].detach() for k in ("means", "quats", "log_scales")})
@@ -50,17 +56,8 @@ def test_thermal_geometry_on_bodies_moves_bodies_only_and_renders_as_on_all(tmp_
     static = model.gaussians["motion_basis"] == 0
     assert model.moves_geometry("thermal") and 0 < int((~static).sum()) < model.num_gaussians
     view = scene.train["thermal"][len(scene.train["thermal"]) // 2]
-    grads = []
-    for narrow in (True, False):
-        g = model.gaussians["embedding_thermal"]
-        g.grad = None
-        if not narrow:
-            monkeypatch.setattr(rendering, "in_view", lambda camera, threads=None: None)
-        image, _, geo = rendering.render(model, "thermal", view.time, view.camera)
-        monkeypatch.undo()
-        (image * torch.linspace(0, 1, image.numel()).view_as(image)).sum().backward()
-        grads.append((image.detach(), g.grad.clone(), geo["geometry_residuals"]["means"].detach()))
-    (a, ga, ra), (b, gb, rb) = grads
+    (a, ga, geo_a), (b, gb, geo_b) = narrow_and_wide(model, view.time, view.camera, monkeypatch)
+    ra, rb = (geo["geometry_residuals"]["means"].detach() for geo in (geo_a, geo_b))
     assert torch.allclose(a, b, atol=1e-6), (a - b).abs().max()
     assert torch.allclose(ga, gb, atol=1e-7), (ga - gb).abs().max()
     assert torch.equal(ra, rb)
