@@ -73,7 +73,7 @@ class Timers:
 def instrument(t: Timers) -> None:
     from recon.dtg import deformation, losses, model, routing, strategy, time_embedding
     from recon.splat import _native
-    from recon.train import trainer
+    from recon.train import optim, trainer
     for name, label in (("project_forward", "projection fwd"), ("project_backward", "projection bwd"),
                         ("rasterize_forward", "rasterize fwd"), ("rasterize_backward", "rasterize bwd")):
         t.wrap(_native, name, label)
@@ -85,7 +85,7 @@ def instrument(t: Timers) -> None:
     for name in ("assignment", "kl_to_prior"):
         t.wrap(routing, name, "routing")
     t.wrap(torch.Tensor, "backward", "autograd bwd (torch ops)")
-    t.wrap(torch.optim.Adam, "step", "adam")
+    t.wrap(optim.LeanAdam, "step", "adam")
     t.wrap(strategy.Strategy, "accumulate", "densify stats")
     t.wrap(strategy.Strategy, "step", "densify")
     t.wrap(trainer, "place_bases", "window body search")

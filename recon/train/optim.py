@@ -56,7 +56,45 @@ def build_optimizer(cfg: TrainConfig, model: DTGModel, extent: float) -> torch.o
                        "lr": cfg.lr.motion_translation_scene[0] * extent})
     groups.append({"params": list(model.backgrounds.parameters()), "name": "backgrounds",
                    "lr": cfg.lr.thermal_background, "base_lr": cfg.lr.thermal_background})
-    return torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)
+    return LeanAdam(groups, lr=0.0, eps=1e-15, fused=True)
+
+
+class LeanAdam(torch.optim.Adam):
+    """torch's fused Adam (the same kernel, the same state, so checkpoints and densification's
+    state swaps are unchanged) without torch.optim's per-step bookkeeping: a DTG step has ~16
+    groups of one tensor each, and Adam.step spent 0.85 ms a call at 160x120 / 9k Gaussians, most of
+    it in Python, against ~0.3 ms here. Groups of the same rate share one kernel call."""
+
+    @torch.no_grad()
+    def step(self, closure=None):
+        assert closure is None, "LeanAdam takes no closure"
+        calls: dict[tuple, list[list]] = {}
+        for group in self.param_groups:
+            beta1, beta2 = group["betas"]
+            key = (group["lr"], beta1, beta2, group["eps"], group["weight_decay"])
+            lists = calls.setdefault(key, [[], [], [], [], []])
+            for p in group["params"]:
+                if p.grad is None:
+                    continue
+                state = self.state[p]
+                if not state:
+                    state["step"] = torch.zeros((), dtype=torch.float32)
+                    state["exp_avg"] = torch.zeros_like(p, memory_format=torch.preserve_format)
+                    state["exp_avg_sq"] = torch.zeros_like(p, memory_format=torch.preserve_format)
+                for out, value in zip(lists, (p, p.grad, state["exp_avg"], state["exp_avg_sq"], state["step"])):
+                    out.append(value)
+        for (lr, beta1, beta2, eps, weight_decay), (params, grads, m, v, steps) in calls.items():
+            if not params:
+                continue
+            torch._foreach_add_(steps, 1)
+            torch._fused_adam_(params, grads, m, v, [], steps, amsgrad=False, lr=lr, beta1=beta1, beta2=beta2,
+                               weight_decay=weight_decay, eps=eps, maximize=False)
+
+    def zero_grad(self, set_to_none: bool = True) -> None:
+        assert set_to_none, "LeanAdam only drops gradients"
+        for group in self.param_groups:
+            for p in group["params"]:
+                p.grad = None
 
 
 def update_learning_rates(optimizer: torch.optim.Optimizer, cfg: TrainConfig, p: float, iteration: int,
