@@ -1,13 +1,15 @@
 """Rigid motion bases (recon/dtg/motion.py) and the growing time window (recon/train/curriculum.py)."""
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import torch
 
 from recon.train.curriculum import extrapolate_rows, window_bounds
 from recon.dtg.gaussians import quat_to_rotmat
-from recon.dtg.motion import (MotionBases, apply_motion, axis_angle_to_matrix, axis_angle_to_quat, connected_clusters,
-                          quat_multiply)
+from recon.dtg.time_embedding import lerp_rows
+from recon.dtg.motion import (_LEFT, MotionBases, apply_motion, axis_angle_to_quat, body_transforms,
+                              connected_clusters, quat_matrix)
 
 
 def rodrigues_reference(v: np.ndarray) -> np.ndarray:
@@ -20,30 +22,47 @@ def rodrigues_reference(v: np.ndarray) -> np.ndarray:
     return np.eye(3) + math.sin(angle) * kx + (1 - math.cos(angle)) * kx @ kx
 
 
-def test_axis_angle_matches_reference_and_quaternion():
+def test_axis_angle_matches_reference_and_body_rotation():
     gen = torch.Generator().manual_seed(0)
     v = torch.randn(64, 3, generator=gen) * 1.5
     v[0] = 0.0
     v[1] = torch.tensor([1e-6, -2e-6, 0.5e-6])
-    r = axis_angle_to_matrix(v.double())
+    bases = MotionBases(torch.zeros(64, 3), knots=2).double()
+    bases.rotation.data = v.double()[:, None].expand(64, 2, 3).clone()
+    r_body = body_transforms(bases, 0.5)[:, :9].view(64, 3, 3)
+    r_quat = quat_to_rotmat(axis_angle_to_quat(v.double()))
     for i in range(len(v)):
-        np.testing.assert_allclose(r[i].numpy(), rodrigues_reference(v[i].double().numpy()), atol=1e-10)
-    q = axis_angle_to_quat(v.double())
-    np.testing.assert_allclose(quat_to_rotmat(q).numpy(), r.numpy(), atol=1e-10)
+        reference = rodrigues_reference(v[i].double().numpy())
+        np.testing.assert_allclose(r_quat[i].numpy(), reference, atol=1e-10)
+        np.testing.assert_allclose(r_body[i].detach().numpy(), reference, atol=1e-10)
 
 
-def test_axis_angle_gradient_is_finite_at_zero():
+def test_motion_gradient_is_finite_at_zero_and_matches_finite_differences():
     v = torch.zeros(2, 3, dtype=torch.double, requires_grad=True)
-    (axis_angle_to_matrix(v).sum() + axis_angle_to_quat(v).sum()).backward()
+    axis_angle_to_quat(v).sum().backward()
     assert torch.isfinite(v.grad).all()
-    assert torch.autograd.gradcheck(axis_angle_to_matrix, (torch.randn(3, 3, dtype=torch.double, requires_grad=True),))
+    gen = torch.Generator().manual_seed(3)
+    pivots = torch.randn(2, 3, generator=gen, dtype=torch.double)
+    rotation = torch.randn(2, 3, 3, generator=gen, dtype=torch.double)
+    rotation[0, 1] = 0.0                                  # a body at rest at t = 0.5
+    means = torch.randn(12, 3, generator=gen, dtype=torch.double, requires_grad=True)
+    quats = torch.randn(12, 4, generator=gen, dtype=torch.double, requires_grad=True)
+    basis = torch.tensor([0.0, 1, 2] * 4, dtype=torch.double)
+    gate = torch.rand(12, generator=gen, dtype=torch.double, requires_grad=True)
+
+    def moved(means, quats, gate, rotation, translation):
+        bases = SimpleNamespace(pivots=pivots, at=lambda t: (lerp_rows(rotation, t, dim=1), lerp_rows(translation, t, dim=1)))
+        return apply_motion(means, quats, basis, gate, bases, 0.5)
+    inputs = (means, quats, gate, rotation.requires_grad_(),
+              torch.randn(2, 3, 3, generator=gen, dtype=torch.double, requires_grad=True))
+    assert torch.autograd.gradcheck(moved, inputs)
 
 
-def test_quat_multiply_composes_rotations():
+def test_quat_left_matrix_composes_rotations():
     gen = torch.Generator().manual_seed(1)
     a, b = axis_angle_to_quat(torch.randn(5, 3, generator=gen)), axis_angle_to_quat(torch.randn(5, 3, generator=gen))
-    torch.testing.assert_close(quat_to_rotmat(quat_multiply(a, b)), quat_to_rotmat(a) @ quat_to_rotmat(b),
-                               atol=1e-5, rtol=1e-5)
+    ab = (quat_matrix(a, _LEFT) @ b[:, :, None])[:, :, 0]
+    torch.testing.assert_close(quat_to_rotmat(ab), quat_to_rotmat(a) @ quat_to_rotmat(b), atol=1e-5, rtol=1e-5)
 
 
 def test_basis_motion_is_rigid_and_static_gaussians_stay():
@@ -61,7 +80,7 @@ def test_basis_motion_is_rigid_and_static_gaussians_stay():
     for sl, b in ((slice(10, 20), 0), (slice(20, 30), 1)):
         d0 = torch.cdist(means[sl], means[sl])
         torch.testing.assert_close(torch.cdist(moved[sl], moved[sl]), d0, atol=1e-5, rtol=1e-5)
-        r = axis_angle_to_matrix(bases.rotation[b, 2])
+        r = torch.from_numpy(rodrigues_reference(bases.rotation[b, 2].detach().double().numpy())).float()
         expect = (means[sl] - bases.pivots[b]) @ r.T + bases.pivots[b] + bases.translation[b, 2]
         torch.testing.assert_close(moved[sl], expect.detach(), atol=1e-5, rtol=1e-5)
         # the Gaussian's own rotation turns with its body

@@ -136,7 +136,7 @@ class DTGModel(nn.Module):
             moved = moved * self.gaussians["dynamic"][index, None]
         means = self.gaussians["means"][index] + moved
         if self.motion is not None:
-            means, _ = apply_motion(means, self.gaussians["quats"][index], self.gaussians["motion_basis"][index],
+            means, _ = apply_motion(means, None, self.gaussians["motion_basis"][index],
                                     self.dynamic_gate(index), self.motion, t)
         return means
 

@@ -353,7 +353,7 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
         sel = basis == b + 1
         if float(weight[sel].sum()) < min_opacity_mass:
             continue
-        means, _ = apply_motion(g["means"][sel], g["quats"][sel], g["motion_basis"][sel], gate[sel], motion, t)
+        means, _ = apply_motion(g["means"][sel], None, g["motion_basis"][sel], gate[sel], motion, t)
         pc = means @ rot.T + cam.viewmat[:3, 3]
         u = cam.fx * pc[:, 0] / pc[:, 2].clamp_min(1e-6) + cam.cx
         v = cam.fy * pc[:, 1] / pc[:, 2].clamp_min(1e-6) + cam.cy
@@ -373,7 +373,7 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
         if 0 <= k_prev < knots:
             speed = float((motion.translation[b, k] - motion.translation[b, k_prev]).norm()) * cam.fx / depth
             if hold_depth:
-                prev, _ = apply_motion(g["means"][sel], g["quats"][sel], g["motion_basis"][sel], gate[sel], motion,
+                prev, _ = apply_motion(g["means"][sel], None, g["motion_basis"][sel], gate[sel], motion,
                                        k_prev / (knots - 1))
                 centre, depth = hold_at_depth(search, b, rows, cam, centre, depth, prev, gate[sel], w)
         steps = [max(s, 0.5 ** i * 0.5 * speed) for i, s in enumerate(pixel_steps)]
