@@ -128,8 +128,9 @@ class Strategy:
             self.stats.reset(n, self.modalities)
         g = means2d_grad * torch.tensor([width / 2.0, height / 2.0])
         vis = radii > 0
-        self.stats.grad[modality][vis] += g[vis].norm(dim=1)
-        self.stats.count[modality][vis] += 1
+        # adding 0 where not drawn: the same sums as masked indexing, without its gathers
+        self.stats.grad[modality] += torch.where(vis, g.norm(dim=1), 0.0)
+        self.stats.count[modality] += vis
 
     def mean_grad(self, roles: torch.Tensor | None) -> torch.Tensor:
         """(N,) the densification criterion of each Gaussian given its role."""
