@@ -175,6 +175,7 @@ class PriorConfig:
     rotation: float = 0.0            # neighbours rotate alike (Luiten et al.: 4)
     smoothness: float = 0.0          # squared acceleration of trajectories over one time step
     sparsity: float = 0.0            # L1 on displacement: the background stays put
+    residual_sparsity: float = 0.0   # L1 on the network's geometry residuals only (not the bodies' motion)
     static: float = 0.0              # a price on each Gaussian's dynamic gate (ModelConfig.dynamic_gate)
     anisotropy: float = 0.0          # a price on Gaussians longer than max_aspect x their width
     basis_smoothness: float = 0.0    # squared acceleration of the motion bases, every knot

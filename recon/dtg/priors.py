@@ -13,6 +13,9 @@ the deformation towards physically plausible motion:
   step (the geometry at t +- dt is evaluated for the sampled Gaussians only);
 - motion sparsity: a small L1 price on displacement, so the static background cannot absorb
   motion that belongs to objects (a static/dynamic split without a hard label);
+- residual sparsity: the same L1 price on a network's geometry residuals only (not on the rigid
+  bodies' motion): with bodies, F_th may move any Gaussian in the thermal render, and without a
+  price the whole static scene can slide where the thermal frames do not pin it;
 - anisotropy (a shape prior, PhysGaussian's): Gaussians longer than ``max_aspect`` times their
   width pay for it. Needles and sheets that fit the training sweep look like streaks from 17-45
   degrees beyond it.
@@ -79,7 +82,7 @@ class MotionPriors:
     def enabled(self) -> bool:
         c = self.cfg
         return any(w > 0 for w in (c.rigidity, c.isometry, c.rotation, c.smoothness, c.sparsity, c.anisotropy,
-                                   c.static))
+                                   c.static, c.residual_sparsity))
 
     def state(self) -> dict:
         return {"n": self._n, "neighbours": self._neighbours}
@@ -134,6 +137,10 @@ class MotionPriors:
             moved = ((deformed["means"][idx] - canonical["means"][idx].detach()) / self.extent).norm(dim=-1).mean()
             total = total + cfg.sparsity * moved
             stats["sparse"] = float(moved.detach())
+        if cfg.residual_sparsity > 0 and "geometry_residuals" in deformed:
+            residual = (deformed["geometry_residuals"]["means"][idx] / self.extent).norm(dim=-1).mean()
+            total = total + cfg.residual_sparsity * residual
+            stats["residual"] = float(residual.detach())
         if cfg.smoothness > 0 and dt > 0:
             s = idx[: cfg.smoothness_sample]
             t0 = min(max(t, dt), 1.0 - dt)                # a centred difference inside [0, 1]
