@@ -11,6 +11,11 @@ offset would be a harmless gauge shift (canonical position + a constant offset r
 a spread near the offset is real motion over time. The end is graded like `recon eval` (per
 region) on the held-out rig. Writes OUT/drift-SCENE-sSEED-METHOD.json (one thread, the
 protocol of bench/table.py).
+
+    python bench/drift.py --table bench/results/residual-sparsity/dev
+
+instead measures the finished runs of a bench/table.py output (their latest checkpoints, progress
+1): how close each run ended to the guard's limit. Writes TABLE/drift.json.
 """
 from __future__ import annotations
 
@@ -44,14 +49,36 @@ def motion(model, progress: float, extent: float, seed: int) -> dict:
     return {"offset": round(float(offset.median()) / extent, 4), "spread": round(float(spread.median()) / extent, 4)}
 
 
+def measure_table(table: Path) -> int:
+    """{scene: {method: {offset, spread}}} of a table's finished runs -> TABLE/drift.json."""
+    from recon.render import load_run
+    out: dict = {}
+    for run in sorted(table.glob("runs/*/*/checkpoints/latest.pt")):
+        run_dir = run.parents[1]
+        scene_name, method = run_dir.parent.name, run_dir.name
+        extent = Scene(load_dataset(table / "data" / scene_name)).extent()
+        model, _ = load_run(run_dir)
+        out.setdefault(scene_name, {})[method] = motion(model, 1.0, extent, 0)
+        print(scene_name, method, out[scene_name][method], flush=True)
+    path = table / "drift.json"
+    path.write_text(json.dumps({"guard_limit": GuardConfig().max_median_motion, "runs": out}, indent=1))
+    print(f"wrote {path}")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--out", type=Path)
+    ap.add_argument("--table", type=Path, help="measure the finished runs of this bench/table.py output instead")
     ap.add_argument("--scene", default="family-inside")
     ap.add_argument("--seed", type=int, default=103)
     ap.add_argument("--method", default="ed3dgs-thermal")
     ap.add_argument("--minutes", type=float, default=3.0)
     args = ap.parse_args()
+    if args.table is not None:
+        return measure_table(args.table)
+    if args.out is None:
+        ap.error("--out is needed to train a run (or --table to measure a table's runs)")
     torch.set_num_threads(1)
     data = family_data(args.out, args.scene, args.seed)
     cfg = make_config(args.method, minutes=args.minutes, log_every=10**9, checkpoint_every=10**9, threads=1)

@@ -97,8 +97,10 @@ class ModelConfig:
     basis_gate_static: float | None = None
     basis_static_share: float = 0.6
     # With bodies, the geometry residuals of a network (F_th in `dtg`) move only the bodies'
-    # Gaussians (times their gate): the static scene keeps one place in every modality, and the
-    # network runs on the bodies and the static Gaussians in view only.
+    # Gaussians (times their gate): the static scene keeps one place in every modality (no drift),
+    # and the network runs on the bodies and the static Gaussians in view only (-1.4 ms per
+    # iteration). Off: thermal MAE worse on 4 of 6 development seeds inside, 5 of 6 outside
+    # (bench/results/thermal-geometry-on-bodies/dev; docs/training.md).
     geometry_on_bodies: bool = False
     body_reach: float = 0.0          # a body's Gaussians stay within this x its farthest initial point
                                      # of its pivot (MotionBases.keep_within); 0: unbounded
@@ -175,7 +177,10 @@ class PriorConfig:
     rotation: float = 0.0            # neighbours rotate alike (Luiten et al.: 4)
     smoothness: float = 0.0          # squared acceleration of trajectories over one time step
     sparsity: float = 0.0            # L1 on displacement: the background stays put
-    residual_sparsity: float = 0.0   # L1 on the network's geometry residuals only (not the bodies' motion)
+    # L1 on the network's geometry residuals only (not the bodies' motion). At 0.1 no run drifts
+    # (median displacement 0 against dtg's up to 0.12 E) but held-out thermal MAE rose on 13 of 16
+    # runs (bench/results/residual-sparsity): off.
+    residual_sparsity: float = 0.0
     static: float = 0.0              # a price on each Gaussian's dynamic gate (ModelConfig.dynamic_gate)
     anisotropy: float = 0.0          # a price on Gaussians longer than max_aspect x their width
     basis_smoothness: float = 0.0    # squared acceleration of the motion bases, every knot
