@@ -101,7 +101,7 @@ def test_the_anchor_loss_pulls_the_rendered_depth_to_the_anchors():
     assert first > 0.2 and float(loss.detach()) < 0.02, (first, float(loss.detach()))
     # a tolerance forgives that much relative error: the trained plane (within 2 %) then costs nothing,
     # a plane 25 % off still costs what exceeds it
-    assert float(anchor_loss(anchors, "v", camera, out.depth, out.alpha, tolerance=0.05)["static"]) == 0.0
+    assert float(anchor_loss(anchors, "v", camera, out.depth, out.alpha, tolerance=0.05)["static"].detach()) == 0.0
     far = DepthAnchors(target * 1.25, anchors.moving, anchors.by_view)
     full = float(anchor_loss(far, "v", camera, out.depth, out.alpha)["static"])
     assert float(anchor_loss(far, "v", camera, out.depth, out.alpha, tolerance=0.1)["static"]) == \
