@@ -103,8 +103,8 @@ def test_the_anchor_loss_pulls_the_rendered_depth_to_the_anchors():
     # a plane 25 % off still costs what exceeds it
     assert float(anchor_loss(anchors, "v", camera, out.depth, out.alpha, tolerance=0.05)["static"].detach()) == 0.0
     far = DepthAnchors(target * 1.25, anchors.moving, anchors.by_view)
-    full = float(anchor_loss(far, "v", camera, out.depth, out.alpha)["static"])
-    assert float(anchor_loss(far, "v", camera, out.depth, out.alpha, tolerance=0.1)["static"]) == \
+    full = float(anchor_loss(far, "v", camera, out.depth, out.alpha)["static"].detach())
+    assert float(anchor_loss(far, "v", camera, out.depth, out.alpha, tolerance=0.1)["static"].detach()) == \
         pytest.approx(full - 0.1, abs=1e-4)
     # anchors of moving points are left out on request, and a view without anchors gives none
     moving = DepthAnchors(target, torch.ones(len(grid), dtype=torch.bool), {"v": torch.arange(len(grid))})
