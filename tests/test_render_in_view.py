@@ -65,3 +65,25 @@ def test_thermal_geometry_on_bodies_moves_bodies_only_and_renders_as_on_all(tmp_
     assert ra[~static].abs().max() > 0                      # the bodies do
     moved = model.means_at("thermal", view.time, 1.0, torch.nonzero(static).view(-1))
     assert torch.equal(moved, model.gaussians["means"][static])
+
+
+def test_bodies_only_geometry_renders_the_same_with_or_without_the_rgb_stage_residuals(tmp_path_factory):
+    """With F_rgb moving geometry too, the thermal render builds on the RGB stage's residuals: the
+    ones its render applied (training passes them) or recomputed (inference). Both must be the
+    bodies-only ones: the static scene stays where training left it."""
+    scene = tiny(tmp_path_factory, "family-inside")
+    cfg = small_cfg("dtg", iterations=100)
+    cfg.model.geometry_on_bodies = True
+    cfg.model.deform_geometry = ("rgb", "thermal")
+    tr = Trainer(cfg, scene, log=lambda _: None)
+    for _ in range(60):
+        tr.step()
+    model, view = tr.model, scene.train["thermal"][3]
+    with torch.no_grad():
+        passed = model.render_inputs("rgb", view.time)["geometry_residuals"]
+        trained = model.render_inputs("thermal", view.time, rgb_geometry=passed)
+        inferred = model.render_inputs("thermal", view.time)
+    static = model.gaussians["motion_basis"] == 0
+    for key in ("means", "quats", "log_scales"):
+        assert torch.equal(trained[key], inferred[key]), key
+    assert torch.equal(inferred["means"][static], model.gaussians["means"][static])

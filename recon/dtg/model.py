@@ -182,8 +182,11 @@ class DTGModel(nn.Module):
             if body_gate is not None:
                 applied = {k: v * body_gate[:, None] for k, v in applied.items()}
             if cfg.deformation == "progressive" and modality == "thermal" and "rgb" in cfg.modalities:
-                first = rgb_geometry if rgb_geometry is not None else {
-                    k: v for k, v in self.stage_residuals("rgb", t, progress).items() if k in GEOMETRY}
+                first = rgb_geometry
+                if first is None:      # what the RGB stage's render applied (its body gate too)
+                    rgb_gate = self.body_geometry_gate("rgb")
+                    first = {k: v if rgb_gate is None else v * rgb_gate[:, None]
+                             for k, v in self.stage_residuals("rgb", t, progress).items() if k in GEOMETRY}
                 first = {k: first.get(k, torch.zeros_like(geo[k])) for k in GEOMETRY}
                 if not cfg.thermal_grad_to_rgb_deformation:
                     first = {k: v.detach() for k, v in first.items()}
