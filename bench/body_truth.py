@@ -48,7 +48,7 @@ TOLERANCE_M = 0.03
 def body_positions(model, rows: torch.Tensor, t: float) -> np.ndarray:
     """(R, 3) world positions at time t of the Gaussians `rows` (indices)."""
     g = model.gaussians
-    means, _ = apply_motion(g["means"][rows], g["quats"][rows], g["motion_basis"][rows],
+    means, _ = apply_motion(g["means"][rows], None, g["motion_basis"][rows],
                             model.dynamic_gate(rows), model.motion, t)
     return means.numpy()
 

@@ -53,12 +53,14 @@ def measure_table(table: Path) -> int:
     """{scene: {method: {offset, spread}}} of a table's finished runs -> TABLE/drift.json."""
     from recon.render import load_run
     out: dict = {}
+    extents: dict[str, float] = {}          # a scene's methods share its dataset: load it once
     for run in sorted(table.glob("runs/*/*/checkpoints/latest.pt")):
         run_dir = run.parents[1]
         scene_name, method = run_dir.parent.name, run_dir.name
-        extent = Scene(load_dataset(table / "data" / scene_name)).extent()
+        if scene_name not in extents:
+            extents[scene_name] = Scene(load_dataset(table / "data" / scene_name)).extent()
         model, _ = load_run(run_dir)
-        out.setdefault(scene_name, {})[method] = motion(model, 1.0, extent, 0)
+        out.setdefault(scene_name, {})[method] = motion(model, 1.0, extents[scene_name], 0)
         print(scene_name, method, out[scene_name][method], flush=True)
     path = table / "drift.json"
     path.write_text(json.dumps({"guard_limit": GuardConfig().max_median_motion, "runs": out}, indent=1))

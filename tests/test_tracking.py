@@ -168,7 +168,7 @@ def test_holding_depth_slides_a_body_along_the_ray_to_its_previous_depth(scene):
             motion.translation[b, rows] += 0.3 * rot[2]          # a guess 0.3 m deeper than it should be
             search = BodySearch(model, frames, t)
             def means_at(s: float) -> torch.Tensor:           # body b's Gaussians at time s
-                return apply_motion(g["means"][sel], g["quats"][sel], g["motion_basis"][sel], gate[sel], motion, s)[0]
+                return apply_motion(g["means"][sel], None, g["motion_basis"][sel], gate[sel], motion, s)[0]
             prev = means_at((k - 1) / (knots - 1))
             centre = (means_at(t) * weight[:, None]).sum(0) / weight.sum()
             depth = float(rot[2] @ centre + tr[2])
