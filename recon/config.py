@@ -102,6 +102,12 @@ class ModelConfig:
     # iteration). Off: thermal MAE worse on 4 of 6 development seeds inside, 5 of 6 outside
     # (bench/results/thermal-geometry-on-bodies/dev; docs/training.md).
     geometry_on_bodies: bool = False
+    # A learned gate per Gaussian on the networks' geometry residuals (F_th's in `dtg`):
+    # residuals x sigmoid(geometry_logit), the logit starting here (None: off) and priced by
+    # PriorConfig.geometry_gate, so a Gaussian the thermal loss gives no reason to move (a
+    # uniform-temperature floor) closes its gate instead of drifting, while one the loss pulls
+    # onto a moving object keeps it open.
+    geometry_gate_init: float | None = None
     body_reach: float = 0.0          # a body's Gaussians stay within this x its farthest initial point
                                      # of its pivot (MotionBases.keep_within); 0: unbounded
     # A bias on the deformation's geometry outputs moves every Gaussian alike. Adam moves it by
@@ -181,6 +187,7 @@ class PriorConfig:
     # (median displacement 0 against dtg's up to 0.12 E) but held-out thermal MAE rose on 13 of 16
     # runs (bench/results/residual-sparsity): off.
     residual_sparsity: float = 0.0
+    geometry_gate: float = 0.0       # a price on the mean gate of ModelConfig.geometry_gate_init
     static: float = 0.0              # a price on each Gaussian's dynamic gate (ModelConfig.dynamic_gate)
     anisotropy: float = 0.0          # a price on Gaussians longer than max_aspect x their width
     basis_smoothness: float = 0.0    # squared acceleration of the motion bases, every knot

@@ -7,7 +7,8 @@ C=1, normalised temperature),
 an opacity logit ``opacity_m`` (N,), and the deformation embedding(s); routing logits
 ``route_logits`` (N, 3) when routing is on; per-Gaussian trajectory knots ``trajectory``
 (N, K, 3) when ``trajectory_step`` is set; the static/dynamic gate logit ``dynamic_logit`` (N,)
-with ``dynamic_gate``; the static/dynamic flag ``dynamic`` (N,) with ``motion_split`` (not learned).
+with ``dynamic_gate``; the static/dynamic flag ``dynamic`` (N,) with ``motion_split`` (not learned);
+the gate logit ``geometry_logit`` (N,) on the networks' geometry residuals with ``geometry_gate_init``.
 
 Everything that has one row per Gaussian lives in this dict, so densification and pruning
 (recon.dtg.strategy) handle a new attribute without any change.
@@ -107,6 +108,8 @@ def init_gaussians(points: torch.Tensor, colors: torch.Tensor, temperatures: tor
     if cfg.motion_bases and cfg.deformation != "none":
         params["motion_basis"] = (basis if basis is not None else torch.zeros(m)).float()
         params["dynamic_logit"] = torch.full((m,), cfg.basis_gate_init) if gates is None else gates.float().clone()
+    if cfg.geometry_gate_init is not None and cfg.deformation != "none":
+        params["geometry_logit"] = torch.full((m,), float(cfg.geometry_gate_init))
     if cfg.motion_split and cfg.deformation != "none":
         params["dynamic"] = (dynamic if dynamic is not None else torch.ones(m)).float()   # 1: may move
     return params

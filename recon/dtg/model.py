@@ -101,6 +101,16 @@ class DTGModel(nn.Module):
             return None
         return self.dynamic_gate() * (self.gaussians["motion_basis"] > 0)
 
+    def geometry_gate(self, stage: str) -> torch.Tensor | None:
+        """(N,) what a stage's network geometry residuals are multiplied by: the bodies' gate
+        (``body_geometry_gate``) times each Gaussian's learned gate sigmoid(geometry_logit)
+        (ModelConfig.geometry_gate_init, priced by PriorConfig.geometry_gate); None for neither."""
+        gate = self.body_geometry_gate(stage)
+        if "geometry_logit" in self.gaussians and self.moves_geometry(stage):
+            learned = torch.sigmoid(self.gaussians["geometry_logit"])
+            gate = learned if gate is None else gate * learned
+        return gate
+
     def motion_stage(self) -> str | None:
         """The deformation stage whose geometry every modality's render builds on ('shared',
         'rgb' or 'thermal'), or None for a static model: where the motion priors apply."""
@@ -125,9 +135,9 @@ class DTGModel(nn.Module):
             key = "embedding" if stage == "shared" else f"embedding_{stage}"
             res = self.deformers[stage](self.time_embedding(t, progress), self.gaussians[key][index])
             moved = res["means"]
-            body_gate = self.body_geometry_gate(stage)
-            if body_gate is not None:
-                moved = moved * body_gate[index, None]
+            gate = self.geometry_gate(stage)
+            if gate is not None:
+                moved = moved * gate[index, None]
         if "trajectory" in self.gaussians:
             moved = moved + lerp_rows(self.gaussians["trajectory"][index], t, dim=1)
         if "dynamic_logit" in self.gaussians and self.motion is None:
@@ -179,12 +189,13 @@ class DTGModel(nn.Module):
             res = {} if later else self.stage_residuals(stage, t, progress, rows=rows)
             res = {**{k: torch.zeros_like(geo[k]) for k in GEOMETRY}, **res}
             applied = {k: res[k] for k in GEOMETRY}
-            if body_gate is not None:
-                applied = {k: v * body_gate[:, None] for k, v in applied.items()}
+            gate = self.geometry_gate(stage)
+            if gate is not None:
+                applied = {k: v * gate[:, None] for k, v in applied.items()}
             if cfg.deformation == "progressive" and modality == "thermal" and "rgb" in cfg.modalities:
                 first = rgb_geometry
-                if first is None:      # what the RGB stage's render applied (its body gate too)
-                    rgb_gate = self.body_geometry_gate("rgb")
+                if first is None:      # what the RGB stage's render applied (its gates too)
+                    rgb_gate = self.geometry_gate("rgb")
                     first = {k: v if rgb_gate is None else v * rgb_gate[:, None]
                              for k, v in self.stage_residuals("rgb", t, progress).items() if k in GEOMETRY}
                 first = {k: first.get(k, torch.zeros_like(geo[k])) for k in GEOMETRY}
@@ -241,6 +252,7 @@ def check_params(cfg: ModelConfig, params: dict[str, torch.Tensor]) -> None:
     expected += ["trajectory"] if cfg.trajectory_step and cfg.deformation != "none" else []
     expected += ["dynamic_logit"] if (cfg.dynamic_gate or cfg.motion_bases) and cfg.deformation != "none" else []
     expected += ["motion_basis"] if cfg.motion_bases and cfg.deformation != "none" else []
+    expected += ["geometry_logit"] if cfg.geometry_gate_init is not None and cfg.deformation != "none" else []
     expected += ["dynamic"] if cfg.motion_split and cfg.deformation != "none" else []
     n = params["means"].shape[0]
     for key in expected:

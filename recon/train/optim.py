@@ -27,7 +27,7 @@ def base_lr(cfg: TrainConfig, key: str, extent: float) -> float:
         return lr.rgb_dc if "rgb" in key else lr.thermal
     if key == "trajectory":
         return lr.trajectory_scene[0] * extent
-    if key == "dynamic_logit":
+    if key in ("dynamic_logit", "geometry_logit"):
         return lr.dynamic
     table = {"quats": lr.quats, "log_scales": lr.scales, "route_logits": cfg.routing.lr}
     if key in table:

@@ -232,6 +232,12 @@ class Trainer:
                 if weights[group] > 0:
                     reg = reg + weights[group] * err
                     stats[f"anchor_{group}"] = float(err.detach())
+        gs = self.model.gaussians
+        if self.cfg.priors.geometry_gate > 0 and "geometry_logit" in gs \
+                and self.model.moves_geometry(self.model.stage_of(modality)):
+            gate = torch.sigmoid(gs["geometry_logit"]).mean()
+            reg = reg + self.cfg.priors.geometry_gate * gate
+            stats["geometry_gate"] = float(gate.detach())
         if self.priors.enabled and self.model.stage_of(modality) == self.model.motion_stage():
             reg = reg + self._motion_priors(g, t, p, stats)
         loss = rec + reg
