@@ -245,7 +245,6 @@ class Trainer:
         loss.backward()
         self.optimizer.step()
         if self.model.motion is not None:
-            gs = self.model.gaussians
             self.model.motion.keep_within(gs["means"].data, gs["log_scales"].data, gs["motion_basis"])
         # a window's loss is a mean over its pixels only: scaled back to a whole frame's, the
         # densification criterion means the same whatever the window
