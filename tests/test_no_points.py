@@ -10,9 +10,10 @@ from recon.data.simulate import SimulateConfig, simulate_dataset
 from recon.sfm import points_from_frames
 
 
-def without_points(tmp_path):
+def without_points(tmp_path, variant="default", seed=2, frames=12):
     data = tmp_path / "data"
-    simulate_dataset(data, SimulateConfig(variant="default", frames=12, width=160, height=120, seed=2, points=20000))
+    simulate_dataset(data, SimulateConfig(variant=variant, frames=frames, width=160, height=120, seed=seed,
+                                          points=20000))
     truth = load_dataset(data)
     (data / "points3d.ply").unlink()
     manifest = json.loads((data / "transforms.json").read_text())
@@ -32,6 +33,19 @@ def test_points_are_triangulated_where_the_scene_is(tmp_path):
     d = np.linalg.norm(xyz[:, None] - truth.points_xyz[None], axis=2).min(1)
     extent = np.linalg.norm(truth.points_xyz.std(0))
     assert np.median(d) < 0.04 * extent, (np.median(d), extent)
+
+
+def test_points_on_a_checkerboard_floor_use_the_given_poses(tmp_path):
+    """A family scene's checkerboard floor repeats: SfM's own poses, aligned on the camera centres,
+    put the points of family-inside seed 101 (40 frames) a median 0.96 m from the surface, and on
+    these 20 frames left 21 points. Triangulated with the given poses, tracks of 3 or more views
+    within a pixel: 277 points, median 0.9 cm, none beyond 30 cm."""
+    data, truth = without_points(tmp_path, variant="family-inside", seed=101, frames=20)
+    xyz, _ = points_from_frames(load_dataset(data))
+    d = np.linalg.norm(xyz[:, None] - truth.points_xyz[None], axis=2).min(1)
+    assert len(xyz) >= 150
+    assert np.median(d) < 0.03, np.median(d)
+    assert np.mean(d > 0.3) < 0.03, np.mean(d > 0.3)
 
 
 def test_recon_run_trains_a_dataset_without_points(tmp_path, capsys):
