@@ -339,3 +339,44 @@ def points_from_frames(dataset, progress=None, max_frames: int = 60, min_track: 
                        f"or record more static texture")
     return (np.array([p.xyz for p in points], np.float64).reshape(-1, 3),
             np.array([p.color for p in points], np.uint8).reshape(-1, 3))
+
+
+def interpolated_points(dataset, xyz: np.ndarray, views: int = 8, stride: int = 4, max_ratio: float = 1.1
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Points on the surfaces between triangulated ones (xyz (P, 3)), for a start that covers what
+    a few hundred SIFT points leave bare (a floor between checker corners, a plain wall). In
+    `views` training RGB frames spread over the sequence, the points' inverse depth is interpolated
+    over the Delaunay triangles of their projections (exact on a plane), sampled every `stride`
+    px, only in triangles whose corner depths agree within `max_ratio` (no bridge over a depth
+    edge); colour from the frame. Family scenes (family-outside seed 101, family-inside seed 102):
+    1221 / 436 triangulated points give 4995 / 2156 more, a median 1.6 / 3.5 cm from the
+    simulator's surface points, 0-0.2 % beyond 30 cm. Returns (xyz (Q, 3) float64, rgb (Q, 3) uint8)."""
+    from scipy.spatial import Delaunay
+    frames = dataset.split("rgb", "train")
+    picks = [frames[i] for i in np.linspace(0, len(frames) - 1, min(views, len(frames))).round().astype(int)]
+    out_xyz, out_rgb = [np.zeros((0, 3))], [np.zeros((0, 3), np.uint8)]
+    for f in picks:
+        c2w = f.c2w_opencv()
+        cam = (xyz - c2w[:3, 3]) @ c2w[:3, :3]                  # world -> camera (OpenCV axes)
+        cam = cam[cam[:, 2] > 1e-6]
+        u, v = f.fx * cam[:, 0] / cam[:, 2] + f.cx, f.fy * cam[:, 1] / cam[:, 2] + f.cy
+        inside = (u >= 0) & (u < f.width) & (v >= 0) & (v < f.height)
+        if int(inside.sum()) < 10:
+            continue
+        uv, inv_z = np.stack([u[inside], v[inside]], 1), 1.0 / cam[inside, 2]
+        tri = Delaunay(uv)
+        corner_z = 1.0 / inv_z[tri.simplices]                    # (T, 3)
+        flat = corner_z.max(1) / corner_z.min(1) <= max_ratio
+        gu, gv = np.meshgrid(np.arange(stride / 2, f.width, stride), np.arange(stride / 2, f.height, stride))
+        q = np.stack([gu.ravel(), gv.ravel()], 1)
+        s = tri.find_simplex(q)
+        q, s = q[s >= 0], s[s >= 0]
+        q, s = q[flat[s]], s[flat[s]]
+        b = np.einsum("nij,nj->ni", tri.transform[s, :2], q - tri.transform[s, 2])
+        bary = np.concatenate([b, 1.0 - b.sum(1, keepdims=True)], 1)
+        z = 1.0 / (bary * inv_z[tri.simplices[s]]).sum(1)
+        local = np.stack([(q[:, 0] - f.cx) / f.fx * z, (q[:, 1] - f.cy) / f.fy * z, z], 1)
+        out_xyz.append(local @ c2w[:3, :3].T + c2w[:3, 3])
+        img = dataset.image(f)
+        out_rgb.append((img[q[:, 1].astype(int), q[:, 0].astype(int)] * 255).round().astype(np.uint8))
+    return np.concatenate(out_xyz), np.concatenate(out_rgb)

@@ -3,11 +3,12 @@ RGB frames with the given poses (recon/sfm.py points_from_frames)."""
 import json
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from recon.cli import main as recon_main
 from recon.data import load_dataset
 from recon.data.simulate import SimulateConfig, simulate_dataset
-from recon.sfm import points_from_frames
+from recon.sfm import interpolated_points, points_from_frames
 
 
 def without_points(tmp_path, variant="default", seed=2, frames=12):
@@ -44,6 +45,13 @@ def test_points_on_a_checkerboard_floor_use_the_given_poses(tmp_path):
     xyz, _ = points_from_frames(load_dataset(data))
     d = np.linalg.norm(xyz[:, None] - truth.points_xyz[None], axis=2).min(1)
     assert len(xyz) >= 150
+    assert np.median(d) < 0.03, np.median(d)
+    assert np.mean(d > 0.3) < 0.03, np.mean(d > 0.3)
+
+    # between them, the surfaces they lie on: more points, as near the simulator's
+    more, rgb = interpolated_points(load_dataset(data), xyz)
+    assert len(more) >= 2 * len(xyz) and rgb.shape == (len(more), 3) and rgb.dtype == np.uint8
+    d, _ = cKDTree(truth.points_xyz).query(more)
     assert np.median(d) < 0.03, np.median(d)
     assert np.mean(d > 0.3) < 0.03, np.mean(d > 0.3)
 

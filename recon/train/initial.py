@@ -14,7 +14,7 @@ from recon.dtg.points import (changing_points, colour_seen_fraction, initial_tem
                                sample_views, transient_points)
 from recon.scene import Scene
 from recon.train.anchors import DepthAnchors, find_anchors
-from recon.sfm import points_from_frames
+from recon.sfm import interpolated_points, points_from_frames
 
 
 def initial_background(scene: Scene, modality: str) -> torch.Tensor:
@@ -33,12 +33,15 @@ def initial_background(scene: Scene, modality: str) -> torch.Tensor:
 
 def initial_points(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log=print) -> tuple[torch.Tensor, torch.Tensor]:
     """The dataset's initial points (at most cfg.max_points of them): (xyz (P, 3), rgb (P, 3) in [0, 1]).
-    A dataset without points3d.ply gets them triangulated from its RGB frames (recon/sfm.py)."""
+    A dataset without points3d.ply gets them triangulated from its RGB frames with its poses, and
+    interpolated over the surfaces between them (recon/sfm.py)."""
     ds = scene.dataset
     if ds.points_xyz is None or len(ds.points_xyz) == 0:
         log(f"{ds.root}: no initial points (points3d.ply): triangulating them from the RGB frames (SfM)")
-        ds.points_xyz, ds.points_rgb = points_from_frames(ds)
-        log(f"{len(ds.points_xyz)} points triangulated")
+        xyz, rgb = points_from_frames(ds)
+        more_xyz, more_rgb = interpolated_points(ds, xyz)
+        ds.points_xyz, ds.points_rgb = np.concatenate([xyz, more_xyz]), np.concatenate([rgb, more_rgb])
+        log(f"{len(xyz)} points triangulated, {len(more_xyz)} more interpolated between them")
     pts = torch.as_tensor(np.asarray(ds.points_xyz), dtype=torch.float32)
     rgb = torch.as_tensor(np.asarray(ds.points_rgb if ds.points_rgb is not None else np.full((len(pts), 3), 0.5)),
                           dtype=torch.float32)
