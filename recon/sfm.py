@@ -283,9 +283,9 @@ def points_from_frames(dataset, progress=None, max_frames: int = 60, min_track: 
     The poses are given, so they are not estimated again: on a checkerboard floor SfM's own poses
     (then aligned on the camera centres) put the points a median 0.96 m from the surface
     (family-inside seed 101), and a dtg run on them scored 13.7 dB RGB against 24.9 dB with the
-    simulator's points. With the given poses: 1266 points, median 1.7 cm from the simulator's
-    surface points, 1 % beyond 30 cm; tracks of 2 views or COLMAP's 4 px tolerance let through
-    wrong matches of the repeated texture (12-33 % beyond 30 cm). Moving objects rarely triangulate
+    simulator's points. With the given poses: 1281 points, median 1.7 cm from the simulator's
+    surface points, 0.6 % beyond 30 cm; tracks of 2 views or COLMAP's 4 px tolerance let through
+    wrong matches of the repeated texture (7-33 % beyond 30 cm). Moving objects rarely triangulate
     (their points agree with no second instant): the bodies of dtg then come from the points under
     their paths, a static warm-up, or not at all. Returns (xyz (P, 3) float64, rgb (P, 3) uint8);
     raises SfmError naming the dataset when too few points triangulate."""
@@ -351,7 +351,7 @@ def interpolated_points(dataset, xyz: np.ndarray, views: int = 8, stride: int = 
     edge); colour from the frame. Family scenes (family-outside seed 101, family-inside seed 102):
     1221 / 436 triangulated points give 4995 / 2156 more, a median 1.6 / 3.5 cm from the
     simulator's surface points, 0-0.2 % beyond 30 cm. Returns (xyz (Q, 3) float64, rgb (Q, 3) uint8)."""
-    from scipy.spatial import Delaunay
+    from scipy.spatial import Delaunay, QhullError
     frames = dataset.split("rgb", "train")
     picks = [frames[i] for i in np.linspace(0, len(frames) - 1, min(views, len(frames))).round().astype(int)]
     out_xyz, out_rgb = [np.zeros((0, 3))], [np.zeros((0, 3), np.uint8)]
@@ -364,7 +364,10 @@ def interpolated_points(dataset, xyz: np.ndarray, views: int = 8, stride: int = 
         if int(inside.sum()) < 10:
             continue
         uv, inv_z = np.stack([u[inside], v[inside]], 1), 1.0 / cam[inside, 2]
-        tri = Delaunay(uv)
+        try:
+            tri = Delaunay(uv)
+        except QhullError:      # all on a line in this view: nothing to span
+            continue
         corner_z = 1.0 / inv_z[tri.simplices]                    # (T, 3)
         flat = corner_z.max(1) / corner_z.min(1) <= max_ratio
         gu, gv = np.meshgrid(np.arange(stride / 2, f.width, stride), np.arange(stride / 2, f.height, stride))

@@ -34,6 +34,10 @@ def test_points_are_triangulated_where_the_scene_is(tmp_path):
     d = np.linalg.norm(xyz[:, None] - truth.points_xyz[None], axis=2).min(1)
     extent = np.linalg.norm(truth.points_xyz.std(0))
     assert np.median(d) < 0.04 * extent, (np.median(d), extent)
+    # points on one line span no surface: nothing to interpolate, and no error
+    line = xyz[0] + np.linspace(0.0, 1.0, 20)[:, None] * (xyz[1] - xyz[0])
+    more, rgb = interpolated_points(ds, line)
+    assert more.shape == (0, 3) and rgb.shape == (0, 3)
 
 
 def test_points_on_a_checkerboard_floor_use_the_given_poses(tmp_path):
