@@ -273,6 +273,11 @@ def _result(rec, stats: dict, total: int) -> SfmResult:
 
 
 
+def spread(frames: list, n: int) -> list:
+    """At most n of `frames`, evenly spaced over them, first and last included."""
+    return [frames[i] for i in np.linspace(0, len(frames) - 1, min(n, len(frames))).round().astype(int)]
+
+
 def points_from_frames(dataset, progress=None, max_frames: int = 60, min_track: int = 3
                        ) -> tuple[np.ndarray, np.ndarray]:
     """Sparse points for a dataset that came without points3d.ply (FORMATS.md makes it optional),
@@ -296,11 +301,10 @@ def points_from_frames(dataset, progress=None, max_frames: int = 60, min_track: 
     if len(frames) < min_track:
         raise SfmError(f"{dataset.root}: no points3d.ply and only {len(frames)} training RGB frames to "
                        f"triangulate points from; add an SfM point cloud (ply_file_path)")
-    picks = [frames[i] for i in np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int)]
+    picks = spread(frames, max_frames)
     by_name = {p.file_path: p for p in picks}
     f = picks[0]
-    opt = SfmOptions(matching="exhaustive", camera_model="PINHOLE",
-                     camera_params=f"{f.fx},{f.fy},{f.cx},{f.cy}", refine_intrinsics=False,
+    opt = SfmOptions(matching="exhaustive", camera_model="PINHOLE", camera_params=f"{f.fx},{f.fy},{f.cx},{f.cy}",
                      single_camera=len({(p.fx, p.fy, p.cx, p.cy, p.width, p.height) for p in picks}) == 1)
     max_error_px = float(np.clip(f.width / 160.0, 1.0, 4.0))
     say = progress or (lambda msg: None)
@@ -353,7 +357,7 @@ def interpolated_points(dataset, xyz: np.ndarray, views: int = 8, stride: int = 
     simulator's surface points, 0-0.2 % beyond 30 cm. Returns (xyz (Q, 3) float64, rgb (Q, 3) uint8)."""
     from scipy.spatial import Delaunay, QhullError
     frames = dataset.split("rgb", "train")
-    picks = [frames[i] for i in np.linspace(0, len(frames) - 1, min(views, len(frames))).round().astype(int)]
+    picks = spread(frames, views)
     out_xyz, out_rgb = [np.zeros((0, 3))], [np.zeros((0, 3), np.uint8)]
     for f in picks:
         c2w = f.c2w_opencv()
