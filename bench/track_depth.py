@@ -79,7 +79,8 @@ class Grader:
         ray = self.ray(j, true)
         d = where - true
         return {"m": round(float(np.linalg.norm(d)), 3),
-                "along_ray_m": None if ray is None else round(float(d @ ray), 3)}
+                "along_ray_m": None if ray is None else round(float(d @ ray), 3),
+                "up_m": round(float(d[2]), 3)}          # the simulator's world is z-up
 
 
 @torch.no_grad()
@@ -143,8 +144,8 @@ def main() -> int:
     Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
     print("objects", result["objects"], "centre", result["center"], "held-out thermal MAE", result["test_thermal_mae_k"])
     for row in knots[:: max(1, len(knots) // 8)]:
-        print(f"knot {row['knot']:2d}: intake " + " ".join(f"{e['m']:.2f}({e['along_ray_m'] or 0:+.2f})" for e in row["intake"])
-              + " | end " + " ".join(f"{e['m']:.2f}({e['along_ray_m'] or 0:+.2f})" for e in row["end"]))
+        print(f"knot {row['knot']:2d}: intake " + " ".join(f"{e['m']:.2f}({e['along_ray_m'] or 0:+.2f},{e['up_m']:+.2f})" for e in row["intake"])
+              + " | end " + " ".join(f"{e['m']:.2f}({e['along_ray_m'] or 0:+.2f},{e['up_m']:+.2f})" for e in row["end"]))
     for row in result["landscape"]:
         print(f"knot {row['knot']} body {row['body']}: true depth at {row['true_depth_offset_m']:+.2f} m, loss there "
               f"{row['loss_at_true_depth']:.5f}; along the ray " + " ".join(f"{k}:{v:.5f}" for k, v in row["loss"].items()))

@@ -195,6 +195,9 @@ class PriorConfig:
     static: float = 0.0              # a price on each Gaussian's dynamic gate (ModelConfig.dynamic_gate)
     anisotropy: float = 0.0          # a price on Gaussians longer than max_aspect x their width
     basis_smoothness: float = 0.0    # squared acceleration of the motion bases, every knot
+    # squared vertical speed of the motion bases (MotionBases.climb; up from the cameras,
+    # Scene.up): moving things keep their height, as on a table or a floor
+    level_paths: float = 0.0
     max_aspect: float = 5.0
     knn: int = 8
     knn_falloff: float = 2000.0      # w = exp(-falloff d^2 / E^2), as the embedding smoothness
@@ -320,6 +323,10 @@ class CurriculumConfig:
     # but the moving region inside rose 33.7 -> 41.1 K and RGB outside fell 1.3 dB
     # (bench/results/hold-depth; docs/training.md, "Holding depth at intake").
     hold_depth: bool = False
+    # A step taken in keeps each body at the previous step's height (along the new view's ray
+    # through its constant-velocity guess) and the image-plane search moves it at that height:
+    # the direction one view cannot pin is set by the height, as PriorConfig.level_paths holds it.
+    level: bool = False
     outside: float = 0.0              # probability of a time step outside the window, with a loss
     outside_keep: float = 0.9         # over the best-fitting fraction of its pixels only
 

@@ -6,6 +6,7 @@ the dataset's own memory-bounded cache.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,6 +20,31 @@ def camera_of_frame(frame: Frame) -> Camera:
     return Camera(torch.as_tensor(np.asarray(frame.viewmat()), dtype=torch.float32),
                   float(frame.fx), float(frame.fy), float(frame.cx), float(frame.cy),
                   int(frame.width), int(frame.height))
+
+
+def up_from_cameras(rotations: torch.Tensor) -> torch.Tensor:
+    """The world's up (3,) from world-to-camera rotations (V, 3, 3), OpenCV axes (y down).
+
+    A handheld camera is held level: its x axis (row 0) is horizontal however far it looks down,
+    while its own up (-row 1) leans towards what it looks at (averaged over a sweep around a
+    scene, 20-30 degrees off). So up is the direction most orthogonal to every camera's x axis;
+    where those all point alike (no sweep) it is taken within their orthogonal plane, nearest the
+    cameras' mean up. Sign: the cameras' mean up. Zeros (unknown) where that estimate is more than
+    75 degrees from the cameras' mean up: cameras held on their side (a portrait video whose
+    rotation was not applied) would otherwise make a wall the floor."""
+    right = rotations[:, 0, :].double()
+    mean_up = -rotations[:, 1, :].double().mean(0)
+    values, vectors = torch.linalg.eigh(right.T @ right / len(right))
+    if float(values[1]) < 0.01:          # x axes within ~6 degrees of one direction: no sweep
+        plane = vectors[:, :2]
+        up = plane @ (plane.T @ mean_up)
+    else:
+        up = vectors[:, 0]
+    up = up / up.norm().clamp_min(1e-12)
+    up = up if float(up @ mean_up) >= 0 else -up
+    if float(up @ mean_up) < math.cos(math.radians(75)) * float(mean_up.norm()):
+        return torch.zeros(3)
+    return up.float()
 
 
 @dataclass
@@ -70,6 +96,11 @@ class Scene:
             p = torch.as_tensor(np.asarray(pts), dtype=torch.float32)
             e = max(e, 0.5 * float((p - p.median(0).values).norm(dim=1).quantile(0.9)))
         return max(e, 1e-3)
+
+    def up(self) -> torch.Tensor:
+        """(3,) unit vector: the world's up as the training cameras show it (up_from_cameras)."""
+        rotations = torch.stack([v.camera.viewmat[:3, :3] for vs in self.train.values() for v in vs])
+        return up_from_cameras(rotations)
 
     # ------------------------------------------------------------ images
     def normalise_k(self, kelvin: torch.Tensor) -> torch.Tensor:

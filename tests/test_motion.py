@@ -3,6 +3,7 @@ import math
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 import torch
 
 from recon.train.curriculum import extrapolate_rows, window_bounds
@@ -164,3 +165,63 @@ def test_trimmed_l1_ignores_the_worst_pixels():
     valid = torch.ones(10, 10, dtype=torch.bool)
     valid[0] = False
     assert abs(float(trimmed_l1(pred, gt, valid, keep=1.0)) - 0.1) < 1e-6
+
+
+def look_at_rotation(eye: np.ndarray, target: np.ndarray, up: np.ndarray, roll: float = 0.0) -> torch.Tensor:
+    """World-to-camera rotation (3, 3), OpenCV axes, of a camera at eye looking at target."""
+    z = (target - eye) / np.linalg.norm(target - eye)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    c, s = math.cos(roll), math.sin(roll)
+    x, y = c * x + s * y, -s * x + c * y
+    return torch.tensor(np.stack([x, y, z]), dtype=torch.float32)
+
+
+def test_up_comes_from_the_cameras_level_x_axes_not_their_tilt():
+    """Cameras on a +-40 degree arc, 30 degrees above the scene and looking down at it, a little
+    rolled, in a world whose up is not an axis: Scene.up's estimate is within 1 degree of the true
+    up, where the cameras' mean up is ~25 degrees off; with no sweep it still points up."""
+    from recon.scene import up_from_cameras
+    rng = np.random.default_rng(3)
+    true_up = np.array([0.3, -0.8, 0.52])
+    true_up /= np.linalg.norm(true_up)
+    a = np.cross(true_up, [1.0, 0, 0])
+    a /= np.linalg.norm(a)
+    b = np.cross(true_up, a)
+
+    def rig(azimuths):
+        rots = []
+        for az in azimuths:
+            eye = 1.5 * (math.cos(math.radians(30)) * (math.cos(az) * a + math.sin(az) * b)
+                         + math.sin(math.radians(30)) * true_up)
+            rots.append(look_at_rotation(eye, np.zeros(3), true_up, roll=rng.normal(0, 0.02)))
+        return torch.stack(rots)
+
+    def angle(u) -> float:
+        return math.degrees(math.acos(min(1.0, float(u.double() @ torch.tensor(true_up)))))
+
+    swept = rig(np.radians(np.linspace(-40, 40, 30)))
+    assert angle(up_from_cameras(swept)) < 1.0
+    mean_up = -swept[:, 1, :].mean(0)
+    assert angle(mean_up / mean_up.norm()) > 15.0
+    still = rig(np.radians(np.full(10, 10.0)))
+    assert angle(up_from_cameras(still)) < 35.0
+    on_side = swept[:, [1, 0, 2], :] * torch.tensor([-1.0, 1.0, 1.0])[:, None]   # every camera rolled 90 degrees
+    assert float(up_from_cameras(on_side).abs().sum()) == 0.0            # unknown, not a wall
+
+
+def test_climb_prices_vertical_speed_only():
+    up = torch.tensor([0.0, 0.6, 0.8])
+    bases = MotionBases(torch.zeros(2, 3), knots=5)
+    with torch.no_grad():
+        level = torch.tensor([0.0, 0.8, -0.6])                  # orthogonal to up
+        bases.translation[:] = torch.linspace(0, 1, 5)[None, :, None] * level
+    assert float(bases.climb(up, 2.0)) < 1e-12
+    with torch.no_grad():
+        bases.translation[1, 3] += 0.2 * up
+    climb = bases.climb(up, 2.0)
+    assert float(climb) == pytest.approx(2 * (0.1 ** 2) / 4, rel=1e-5)   # up then down 0.1 extents, 4 steps
+    climb.backward()
+    grad = bases.translation.grad[1, 3]
+    assert float(grad.norm()) > 0 and float((grad - (grad @ up) * up).norm()) < 1e-6

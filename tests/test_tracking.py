@@ -23,7 +23,8 @@ from recon.dtg.losses import thermal_loss
 from recon.render import render, render_frame
 from recon.scene import Scene
 from recon.dtg.motion import apply_motion
-from recon.train.curriculum import BodySearch, frames_at, hold_at_depth, window_loss
+from recon.train.curriculum import (BodySearch, at_height, frames_at, hold_at_depth, hold_at_height,
+                                    level_offsets, window_loss)
 from recon.train.trainer import Trainer
 
 
@@ -146,20 +147,25 @@ def test_body_search_scores_offsets_as_whole_frame_renders_do(scene):
     assert window_pixels and min(window_pixels) < 0.5, window_pixels
 
 
+def mid_window(scene):
+    """A window-trained dtg and the step halfway through its knots: (trainer, knot k, its time t,
+    the views at t, the first one's camera, the knots from k on)."""
+    trainer = window_trained(scene)
+    knots = trainer.model.motion.translation.shape[1]
+    k = knots // 2
+    t = k / (knots - 1)
+    frames = frames_at(trainer.scene, trainer.cfg.model.modalities, t)
+    return trainer, k, t, frames, frames[0][1], torch.arange(k, knots)
+
+
 def test_holding_depth_slides_a_body_along_the_ray_to_its_previous_depth(scene):
     """hold_at_depth (curriculum.hold_depth): a body whose new step was guessed at another depth is
     slid along the view's ray back to the depth it had at the previous step: the weighted centre of
     its Gaussians lands at that camera depth and keeps its pixel."""
-    trainer = window_trained(scene)
-    cfg, model, motion = trainer.cfg, trainer.model, trainer.model.motion
-    g, gate = model.gaussians, model.dynamic_gate()
-    knots = motion.translation.shape[1]
-    k = knots // 2
-    t = k / (knots - 1)
-    frames = frames_at(trainer.scene, cfg.model.modalities, t)
-    cam = frames[0][1]
+    trainer, k, t, frames, cam, rows = mid_window(scene)
+    model, motion = trainer.model, trainer.model.motion
+    g, gate, knots = model.gaussians, model.dynamic_gate(), motion.translation.shape[1]
     rot, tr = cam.viewmat[:3, :3], cam.viewmat[:3, 3]
-    rows = torch.arange(k, knots)
     moved = 0
     with torch.no_grad():
         for b in range(motion.count):
@@ -183,3 +189,45 @@ def test_holding_depth_slides_a_body_along_the_ray_to_its_previous_depth(scene):
             for i, f in ((0, cam.fx), (1, cam.fy)):
                 assert abs(f * float(pc[i] / pc[2] - pc2[i] / pc2[2])) < 1e-2        # same pixel
     assert moved >= 1
+
+
+def test_holding_height_slides_a_body_along_the_ray_to_its_previous_height(scene):
+    """hold_at_height (curriculum.level): a body guessed 0.3 m deeper along the view is slid along
+    the ray back to the height it had at the previous step, keeping its pixel; the level search's
+    offsets keep the body's height and land on the pixels the image-plane offsets would."""
+    trainer, k, t, frames, cam, rows = mid_window(scene)
+    model, motion, up = trainer.model, trainer.model.motion, trainer.up
+    g, gate, knots = model.gaussians, model.dynamic_gate(), motion.translation.shape[1]
+    rot, tr = cam.viewmat[:3, :3], cam.viewmat[:3, 3]
+
+    def pixel(p: torch.Tensor) -> torch.Tensor:
+        pc = rot @ p + tr
+        return torch.stack([cam.fx * pc[0] / pc[2], cam.fy * pc[1] / pc[2]])
+
+    moved = on_ray = 0
+    with torch.no_grad():
+        for b in range(motion.count):
+            sel = g["motion_basis"] == b + 1
+            weight = torch.sigmoid(g["opacity_rgb"][sel]) * gate[sel]
+            motion.translation[b, rows] += 0.3 * rot[2]
+            search = BodySearch(model, frames, t)
+            def means_at(s: float) -> torch.Tensor:
+                return apply_motion(g["means"][sel], None, g["motion_basis"][sel], gate[sel], motion, s)[0]
+            prev = means_at((k - 1) / (knots - 1))
+            centre = (means_at(t) * weight[:, None]).sum(0) / weight.sum()
+            h_prev = float(up @ ((prev * weight[:, None]).sum(0) / weight.sum()))
+            new_centre, new_depth = hold_at_height(search, b, rows, cam, centre, prev, gate[sel], weight, up)
+            if torch.equal(new_centre, centre):
+                continue                   # a ray too level (or a body too faint) to slide along
+            moved += 1
+            centre2 = (means_at(t) * weight[:, None]).sum(0) / weight.sum()
+            assert float(up @ centre2) == pytest.approx(h_prev, abs=2e-3)
+            assert float((pixel(centre2) - pixel(centre)).abs().max()) < 1e-2
+            assert new_depth == pytest.approx(float(rot[2] @ centre2 + tr[2]), rel=1e-3)
+            plane = [s * rot[0] * new_depth / cam.fx for s in (-6, 6)] + [s * rot[1] * new_depth / cam.fy for s in (-6, 6)]
+            for o, lo in zip(plane, level_offsets(plane, centre2, cam.center, up)):
+                assert abs(float(lo @ up)) < 1e-4
+                if at_height(centre2 + o, cam.center, up, float(up @ centre2)) is not None:
+                    on_ray += 1       # (else a ray too level: the offset's horizontal part)
+                    assert float((pixel(centre2 + lo) - pixel(centre2 + o)).abs().max()) < 1e-2
+    assert moved >= 1 and on_ray >= 2

@@ -86,6 +86,18 @@ class MotionBases(nn.Module):
         acc = lambda x: (x[:, 2:] - 2 * x[:, 1:-1] + x[:, :-2]).pow(2).sum(-1).mean(1).sum()  # noqa: E731
         return acc(self.rotation) + acc(self.translation / extent)
 
+    def climb(self, up: torch.Tensor, extent: float) -> torch.Tensor:
+        """Squared vertical speed of each basis' translation (in scene extents per knot) along
+        up (3,), summed over bases and averaged over knots.
+
+        Things that move on a table or a floor keep their height, and height is what one view pins
+        badly least: a body's depth along a training ray that looks down at it is set by its height
+        (PriorConfig.level_paths)."""
+        if self.translation.shape[1] < 2:
+            return self.translation.sum() * 0
+        rise = (self.translation[:, 1:] - self.translation[:, :-1]) @ up.to(self.translation) / extent
+        return rise.pow(2).mean(1).sum()
+
 
 # L(q) @ p = q * p (Hamilton product, wxyz) and R(q) @ p = p * q, as gathers of q's entries with
 # signs: one index and one multiply in the autograd graph instead of 16 stacked scalars.

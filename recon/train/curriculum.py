@@ -323,9 +323,54 @@ def hold_at_depth(search: BodySearch, b: int, knots: torch.Tensor, camera, centr
     return centre + shift, z_prev
 
 
+MIN_RAY_DROP = 0.1     # sin(~6 deg): a ray flatter than this meets a height too far off to trust
+
+
+def at_height(point: torch.Tensor, eye: torch.Tensor, up: torch.Tensor, height: float) -> torch.Tensor | None:
+    """Where the ray from eye (3,) through point (3,) is at `height` along up (3,); None where the
+    ray is within ~6 degrees of level or meets that height more than 1.5x nearer or farther than
+    point (a guess that far off is lost, not merely at the wrong depth)."""
+    ray = point - eye
+    drop = float(ray @ up)
+    if abs(drop) < MIN_RAY_DROP * float(ray.norm()):
+        return None
+    s = (height - float(eye @ up)) / drop
+    return eye + s * ray if 1 / 1.5 <= s <= 1.5 else None
+
+
+def level_offsets(offsets: list[torch.Tensor], centre: torch.Tensor, eye: torch.Tensor,
+                  up: torch.Tensor) -> list[torch.Tensor]:
+    """Image-plane offsets (3,) of a body at centre (3,) seen from eye, each moved along its own ray
+    to the centre's height: the same pixels, no change of height (horizontal part where the ray
+    is too flat)."""
+    height = float(centre @ up)
+    out = []
+    for o in offsets:
+        p = at_height(centre + o, eye, up, height)
+        out.append(p - centre if p is not None else o - (o @ up) * up)
+    return out
+
+
+def hold_at_height(search: BodySearch, b: int, knots: torch.Tensor, camera, centre: torch.Tensor,
+                   prev_means: torch.Tensor, gate: torch.Tensor, weight: torch.Tensor,
+                   up: torch.Tensor) -> tuple[torch.Tensor, float]:
+    """Slide body b (its knots `knots`) along camera's ray through its centre (3,) to the height
+    along up its Gaussians had at the previous step (prev_means (M, 3), weights (M,)): its pixel
+    stays, and its depth follows from its height. -> (centre, camera depth) after the move."""
+    rot, tr = camera.viewmat[:3, :3], camera.viewmat[:3, 3]
+    height = float(up @ ((prev_means * weight[:, None]).sum(0) / weight.sum()))
+    mean_gate = float((gate * weight).sum() / weight.sum())
+    target = at_height(centre, camera.center, up, height)
+    if target is not None and mean_gate >= 0.05:
+        search.move(b, knots, (target - centre) / mean_gate)
+        centre = target
+    return centre, float(rot[2] @ centre + tr[2])
+
+
 @torch.no_grad()
 def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.0,
-                pixel_steps: tuple[float, ...] = (6.0, 3.0), hold_depth: bool = False) -> None:
+                pixel_steps: tuple[float, ...] = (6.0, 3.0), hold_depth: bool = False,
+                up: torch.Tensor | None = None) -> None:
     """Where each motion basis is at a time step the window just took in: a coarse search before
     the gradient refines it. The knots of the new step (and beyond, on `side` 'lo' or 'hi') start
     at constant velocity; for each basis with Gaussians near the view, offsets of (pixel_steps)
@@ -334,7 +379,9 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
     trajectory smoothness (MotionBases.smoothness): one view pins it poorly. Photometric gradients
     only pull an object that already overlaps its image; a search finds one that the
     constant-velocity guess missed by a few pixels. hold_depth: before the search each body slides
-    along the first frame's ray to the depth it had at the previous step (hold_at_depth)."""
+    along the first frame's ray to the depth it had at the previous step (hold_at_depth). up (3,):
+    instead, each body slides to the height it had at the previous step and the search keeps that
+    height (hold_at_height, level_offsets)."""
     motion = model.motion
     if motion is None or not frames or motion.count == 0:
         return
@@ -372,14 +419,19 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
         speed = 0.0
         if 0 <= k_prev < knots:
             speed = float((motion.translation[b, k] - motion.translation[b, k_prev]).norm()) * cam.fx / depth
-            if hold_depth:
+            if hold_depth or up is not None:
                 prev, _ = apply_motion(g["means"][sel], None, g["motion_basis"][sel], gate[sel], motion,
                                        k_prev / (knots - 1))
-                centre, depth = hold_at_depth(search, b, rows, cam, centre, depth, prev, gate[sel], w)
+                if up is not None:
+                    centre, depth = hold_at_height(search, b, rows, cam, centre, prev, gate[sel], w, up)
+                else:
+                    centre, depth = hold_at_depth(search, b, rows, cam, centre, depth, prev, gate[sel], w)
         steps = [max(s, 0.5 ** i * 0.5 * speed) for i, s in enumerate(pixel_steps)]
         for s in steps:
             group = [(i * s * depth / cam.fx) * rot[0] + (j * s * depth / cam.fy) * rot[1]
                      for i in (-1, 0, 1) for j in (-1, 0, 1) if i or j]
+            if up is not None:
+                group = level_offsets(group, centre, cam.center, up)
             plans = search.plan(b, rows, group)
             best, best_loss = None, search.loss(b, rows, torch.zeros(3), plans)
             for offset in group:
@@ -388,3 +440,4 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
                     best, best_loss = offset, loss
             if best is not None:
                 search.move(b, rows, best)
+                centre = centre + best

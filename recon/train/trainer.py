@@ -62,6 +62,7 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.gen = torch.Generator().manual_seed(cfg.seed)
         self.extent = scene.extent()
+        self.up = scene.up()
         self.held = None          # initial points held out of a static warm-up, for body discovery
         if model is None:
             model, self.held = initial_model(cfg, scene, self.gen, self.log)
@@ -265,6 +266,10 @@ class Trainer:
             acc = model.motion.smoothness(self.extent)
             reg = reg + self.cfg.priors.basis_smoothness * acc
             stats["basis_acc"] = float(acc.detach())
+        if model.motion is not None and self.cfg.priors.level_paths > 0:
+            climb = model.motion.climb(self.up, self.extent)
+            reg = reg + self.cfg.priors.level_paths * climb
+            stats["basis_climb"] = float(climb.detach())
         if self.cfg.model.deformation != "none" and cfg.time_smoothness > 0:
             tv = model.time_embedding.temporal_smoothness()
             reg = reg + cfg.time_smoothness * tv
@@ -288,7 +293,8 @@ class Trainer:
             if self.cfg.curriculum.search and self.model.motion is not None:
                 for side, when in taken_in:
                     place_bases(self.model, frames_at(self.scene, self.cfg.model.modalities, when), when, side,
-                                hold_depth=self.cfg.curriculum.hold_depth)
+                                hold_depth=self.cfg.curriculum.hold_depth,
+                                up=self.up if self.cfg.curriculum.level else None)
         if self.held is not None:
             t = self.train_times[int(torch.randint(len(self.train_times), (1,), generator=self.gen))]
         else:
@@ -407,6 +413,10 @@ class Trainer:
         total = f"{self.cfg.minutes:g} min" if self.cfg.minutes else f"{self.cfg.iterations} it"
         self.log(f"training {self.cfg.method}: {self.model.num_gaussians} Gaussians, "
                  f"{len(self.scene.times)} time steps, budget {total}, scene extent {self.extent:.3f}")
+        if self.cfg.curriculum.level or self.cfg.priors.level_paths > 0:
+            self.log("moving bodies keep their height along up = (" + ", ".join(f"{v:.2f}" for v in self.up) + ")"
+                     if float(self.up.abs().sum()) > 0 else
+                     "the cameras do not show which way is up (held on their side?): bodies may change height")
 
     def tick(self, on_eval=None) -> dict:
         """One iteration plus, when due, held-out evaluation (on_eval(trainer, record) is called
