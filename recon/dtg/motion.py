@@ -90,9 +90,9 @@ class MotionBases(nn.Module):
         """Squared vertical speed of each basis' translation (in scene extents per knot) along
         up (3,), summed over bases and averaged over knots.
 
-        Things that move on a table or a floor keep their height, and height is what one view pins
-        badly least: a body's depth along a training ray that looks down at it is set by its height
-        (PriorConfig.level_paths)."""
+        Things that move on a table or a floor keep their height, and a view that looks down at a
+        body turns its height into its depth along the ray: the one direction that a single view
+        cannot measure (PriorConfig.level_paths)."""
         if self.translation.shape[1] < 2:
             return self.translation.sum() * 0
         rise = (self.translation[:, 1:] - self.translation[:, :-1]) @ up.to(self.translation) / extent
