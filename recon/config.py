@@ -108,6 +108,11 @@ class ModelConfig:
     # uniform-temperature floor) closes its gate instead of drifting, while one the loss pulls
     # onto a moving object keeps it open.
     geometry_gate_init: float | None = None
+    # A network that moves geometry (F_th in `dtg`) runs only on the Gaussians whose place before it
+    # lies in the camera's view (or training window) widened by this fraction of the whole view's
+    # size on each side; the others get no residual. Exact unless a residual carries a Gaussian
+    # from beyond that margin into the render. None: on every Gaussian.
+    view_margin: float | None = None
     body_reach: float = 0.0          # a body's Gaussians stay within this x its farthest initial point
                                      # of its pivot (MotionBases.keep_within); 0: unbounded
     # A bias on the deformation's geometry outputs moves every Gaussian alike. Adam moves it by

@@ -87,3 +87,34 @@ def test_bodies_only_geometry_renders_the_same_with_or_without_the_rgb_stage_res
     for key in ("means", "quats", "log_scales"):
         assert torch.equal(trained[key], inferred[key]), key
     assert torch.equal(inferred["means"][static], model.gaussians["means"][static])
+
+
+def test_geometry_network_near_the_view_renders_and_trains_as_on_all(tmp_path_factory, monkeypatch):
+    """ModelConfig.view_margin: a network that moves geometry (dtg's F_th) runs on the Gaussians
+    whose place before it lies in the view or window widened by the margin; once trained a little,
+    no residual carries a Gaussian across that margin, so render and gradients are those of running
+    it on every Gaussian, while it ran on fewer."""
+    scene = tiny(tmp_path_factory, "family-inside")
+    cfg = small_cfg("dtg", iterations=100)
+    cfg.model.view_margin = 0.1
+    tr = Trainer(cfg, scene, log=lambda _: None)
+    for _ in range(60):
+        tr.step()
+    model = tr.model
+    assert model.moves_geometry("thermal")
+    view = scene.train["thermal"][len(scene.train["thermal"]) // 2]
+    ran = []
+    residuals = model.stage_residuals
+
+    def spy(stage, t, progress, rows=None):
+        if stage == "thermal":
+            ran.append(model.num_gaussians if rows is None else rows.numel())
+        return residuals(stage, t, progress, rows=rows)
+
+    model.stage_residuals = spy
+    for camera in (view.camera, view.camera.crop(10, 6, 24, 18)):
+        ran.clear()
+        (a, ga, _), (b, gb, _) = narrow_and_wide(model, view.time, camera, monkeypatch)
+        assert torch.allclose(a, b, atol=1e-6), (a - b).abs().max()
+        assert torch.allclose(ga, gb, atol=1e-7), (ga - gb).abs().max()
+        assert ran[0] < ran[1] == model.num_gaussians        # near the view, then on every Gaussian

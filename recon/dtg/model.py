@@ -180,20 +180,11 @@ class DTGModel(nn.Module):
             stage = "shared" if cfg.deformation == "shared" else modality
             # a network that changes only opacity and features runs after the geometry, on the rows in view
             later = in_view is not None and stage in self.deformers and not self.moves_geometry(stage)
-            body_gate = self.body_geometry_gate(stage)
-            rows = None
-            if body_gate is not None and in_view is not None and "trajectory" not in g:
-                # only bodies move: the static rows in view are known before the network runs
-                canonical = in_view({k: v.detach() for k, v in geo.items()})
-                rows = torch.unique(torch.cat([canonical, torch.nonzero(body_gate).view(-1)]))
-            res = {} if later else self.stage_residuals(stage, t, progress, rows=rows)
-            res = {**{k: torch.zeros_like(geo[k]) for k in GEOMETRY}, **res}
-            applied = {k: res[k] for k in GEOMETRY}
-            gate = self.geometry_gate(stage)
-            if gate is not None:
-                applied = {k: v * gate[:, None] for k, v in applied.items()}
+            first = None
             if cfg.deformation == "progressive" and modality == "thermal" and "rgb" in cfg.modalities:
                 first = rgb_geometry
+                if first is None and not self.moves_geometry("rgb"):
+                    first = {}
                 if first is None:      # what the RGB stage's render applied (its gates too)
                     rgb_gate = self.geometry_gate("rgb")
                     first = {k: v if rgb_gate is None else v * rgb_gate[:, None]
@@ -201,18 +192,41 @@ class DTGModel(nn.Module):
                 first = {k: first.get(k, torch.zeros_like(geo[k])) for k in GEOMETRY}
                 if not cfg.thermal_grad_to_rgb_deformation:
                     first = {k: v.detach() for k, v in first.items()}
-                applied = {k: first[k] + applied[k] for k in GEOMETRY}
-            if "trajectory" in g:       # shared by every modality, trained by every loss
-                applied = {**applied, "means": applied["means"] + lerp_rows(g["trajectory"], t, dim=1)}
-            if "dynamic_logit" in g and self.motion is None:
-                gate = self.dynamic_gate()[:, None]
-                applied = {k: v * gate for k, v in applied.items()}
-            if "dynamic" in g:
-                applied = {k: v * g["dynamic"][:, None] for k, v in applied.items()}
-            geo = {k: geo[k] + applied[k] for k in GEOMETRY}
-            if self.motion is not None:
-                geo["means"], geo["quats"] = apply_motion(geo["means"], geo["quats"], g["motion_basis"],
-                                                          self.dynamic_gate(), self.motion, t)
+
+            def place(own: dict[str, torch.Tensor]):
+                """This stage's geometry residuals (after its gate) -> (geometry, residuals applied)."""
+                applied = own if first is None else {k: first[k] + own[k] for k in GEOMETRY}
+                if "trajectory" in g:       # shared by every modality, trained by every loss
+                    applied = {**applied, "means": applied["means"] + lerp_rows(g["trajectory"], t, dim=1)}
+                if "dynamic_logit" in g and self.motion is None:
+                    gate = self.dynamic_gate()[:, None]
+                    applied = {k: v * gate for k, v in applied.items()}
+                if "dynamic" in g:
+                    applied = {k: v * g["dynamic"][:, None] for k, v in applied.items()}
+                moved = {k: geo[k] + applied[k] for k in GEOMETRY}
+                if self.motion is not None:
+                    moved["means"], moved["quats"] = apply_motion(moved["means"], moved["quats"], g["motion_basis"],
+                                                                  self.dynamic_gate(), self.motion, t)
+                return moved, applied
+
+            body_gate = self.body_geometry_gate(stage)
+            rows = None
+            if body_gate is not None and in_view is not None and "trajectory" not in g:
+                # only bodies move: the static rows in view are known before the network runs
+                canonical = in_view({k: v.detach() for k, v in geo.items()})
+                rows = torch.unique(torch.cat([canonical, torch.nonzero(body_gate).view(-1)]))
+            elif in_view is not None and not later and cfg.view_margin is not None and stage in self.deformers:
+                # the rows whose place before this network is within the widened whole view
+                with torch.no_grad():
+                    before = place({k: torch.zeros_like(geo[k]) for k in GEOMETRY})[0]
+                rows = in_view(before, margin=cfg.view_margin)
+            res = {} if later else self.stage_residuals(stage, t, progress, rows=rows)
+            res = {**{k: torch.zeros_like(geo[k]) for k in GEOMETRY}, **res}
+            own = {k: res[k] for k in GEOMETRY}
+            gate = self.geometry_gate(stage)
+            if gate is not None:
+                own = {k: v * gate[:, None] for k, v in own.items()}
+            geo, applied = place(own)
             if later:
                 res = self.stage_residuals(stage, t, progress, rows=in_view({k: v.detach() for k, v in geo.items()}))
             if f"opacity_{modality}" in res:
