@@ -399,7 +399,8 @@ DTG_MOTION = {
     # (better on 5 of 8), outside 1.90 -> 1.82 K (4 of 8), worst seed 4.76 -> 4.01 and 15.03 -> 14.68 K
     # (bench/results/geometry-gate; docs/training.md).
     # view_margin: F_th runs on the Gaussians near the view or window, not on every one:
-    # bench/train_step.py 640x480/90k with windows 116 -> 76 ms per iteration; never-tuned seeds
+    # bench/train_step.py 640x480/90k with windows 135.5 -> 85.4 and 164.5 -> 85.1 ms per
+    # iteration (bench/results/train_step-view-margin; 160x120 within noise); never-tuned seeds
     # 100-107 at 3 min, 160x120: 45.7 -> 42.0 ms/it inside, 48.0 -> 44.8 outside, thermal MAE 3.22
     # -> 3.09 K and 1.97 -> 2.00 K, RGB +0.2 / +0.9 dB (bench/results/view-margin; docs/training.md).
     "model": {"motion_bases": 32, "deform_geometry": ("thermal",), "deform_opacity": ("thermal",),

@@ -43,11 +43,12 @@ def pixel_boxes(camera: Camera, means: torch.Tensor, quats: torch.Tensor, log_sc
 
 def widened(camera: Camera, margin: float) -> Camera:
     """A camera (or a crop() of one) widened on each side by margin x the whole view's width and
-    height (the same rays, more of them)."""
-    _, _, w, h = camera.window or (0, 0, camera.width, camera.height)
+    height (the same rays, more of them), as a window of the whole view widened alike (so the
+    projection's clamp follows that view's edges, as in the render)."""
+    x0, y0, w, h = camera.window or (0, 0, camera.width, camera.height)
     mx, my = int(math.ceil(margin * w)), int(math.ceil(margin * h))
     return Camera(camera.viewmat, camera.fx, camera.fy, camera.cx + mx, camera.cy + my,
-                  camera.width + 2 * mx, camera.height + 2 * my)
+                  camera.width + 2 * mx, camera.height + 2 * my, (x0, y0, w + 2 * mx, h + 2 * my))
 
 
 def in_view(camera: Camera, threads: int | None = None):

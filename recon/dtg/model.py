@@ -184,7 +184,7 @@ class DTGModel(nn.Module):
             if cfg.deformation == "progressive" and modality == "thermal" and "rgb" in cfg.modalities:
                 first = rgb_geometry
                 if first is None and not self.moves_geometry("rgb"):
-                    first = {}
+                    first = {}         # F_rgb moves no geometry: nothing to add
                 if first is None:      # what the RGB stage's render applied (its gates too)
                     rgb_gate = self.geometry_gate("rgb")
                     first = {k: v if rgb_gate is None else v * rgb_gate[:, None]
@@ -216,7 +216,7 @@ class DTGModel(nn.Module):
                 canonical = in_view({k: v.detach() for k, v in geo.items()})
                 rows = torch.unique(torch.cat([canonical, torch.nonzero(body_gate).view(-1)]))
             elif in_view is not None and not later and cfg.view_margin is not None and stage in self.deformers:
-                # the rows whose place before this network is within the widened whole view
+                # the rows whose place before this network is in the view or window, widened
                 with torch.no_grad():
                     before = place({k: torch.zeros_like(geo[k]) for k in GEOMETRY})[0]
                 rows = in_view(before, margin=cfg.view_margin)
