@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -41,23 +40,13 @@ def pixel_boxes(camera: Camera, means: torch.Tensor, quats: torch.Tensor, log_sc
     return means2d - r, means2d + r, radii > 0
 
 
-def widened(camera: Camera, margin: float) -> Camera:
-    """A camera (or a crop() of one) widened on each side by margin x the whole view's width and
-    height (the same rays, more of them), as a window of the whole view widened alike (so the
-    projection's clamp follows that view's edges, as in the render)."""
-    x0, y0, w, h = camera.window or (0, 0, camera.width, camera.height)
-    mx, my = int(math.ceil(margin * w)), int(math.ceil(margin * h))
-    return Camera(camera.viewmat, camera.fx, camera.fy, camera.cx + mx, camera.cy + my,
-                  camera.width + 2 * mx, camera.height + 2 * my, (x0, y0, w + 2 * mx, h + 2 * my))
-
-
 def in_view(camera: Camera, threads: int | None = None):
     """geometry {means (N,3), quats, log_scales}, margin -> (R,) indices of the Gaussians the
     rasterizer may draw in this camera (its projection's culling at full opacity, the widest
-    footprint: a superset of what any opacity draws); with a margin (a fraction, see `widened`) in
-    the camera widened by it instead."""
+    footprint: a superset of what any opacity draws); with a margin (a fraction, see
+    `PinholeCamera.widened`) in the camera widened by it instead."""
     def rows(geo: dict[str, torch.Tensor], margin: float | None = None) -> torch.Tensor:
-        cam = camera if margin is None else widened(camera, margin)
+        cam = camera if margin is None else camera.widened(margin)
         ones = torch.ones(geo["means"].shape[0])
         drawn = pixel_boxes(cam, geo["means"], geo["quats"], geo["log_scales"], ones, threads)[2]
         return torch.nonzero(drawn).view(-1)

@@ -1,6 +1,7 @@
 """Camera conventions: nerfstudio / transforms.json poses -> the rasterizer's viewmat."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -55,6 +56,15 @@ class PinholeCamera:
         ox, oy, full_w, full_h = self.window or (0, 0, self.width, self.height)
         return PinholeCamera(self.viewmat, self.fx, self.fy, self.cx - x0, self.cy - y0, width, height,
                              (ox + x0, oy + y0, full_w, full_h))
+
+    def widened(self, margin: float) -> "PinholeCamera":
+        """This view (or window) widened on each side by margin x the whole view's width and height
+        (the same rays, more of them), as a window of the whole view widened alike, so the
+        projection's clamp follows that view's edges as in the render."""
+        x0, y0, w, h = self.window or (0, 0, self.width, self.height)
+        mx, my = int(math.ceil(margin * w)), int(math.ceil(margin * h))
+        return PinholeCamera(self.viewmat, self.fx, self.fy, self.cx + mx, self.cy + my,
+                             self.width + 2 * mx, self.height + 2 * my, (x0, y0, w + 2 * mx, h + 2 * my))
 
     def downscaled(self, factor: int) -> "PinholeCamera":
         """This view at 1/factor of each side (pixel i covers pixels [i factor, (i+1) factor) of the
