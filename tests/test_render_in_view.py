@@ -118,3 +118,39 @@ def test_geometry_network_near_the_view_renders_and_trains_as_on_all(tmp_path_fa
         assert torch.allclose(a, b, atol=1e-6), (a - b).abs().max()
         assert torch.allclose(ga, gb, atol=1e-7), (ga - gb).abs().max()
         assert ran[0] < ran[1] == model.num_gaussians        # near the view, then on every Gaussian
+
+
+def test_network_skips_gaussians_the_frozen_routing_removes(tmp_path_factory):
+    """Once routing is frozen, a Gaussian whose modality mask is 0 is not drawn and takes no
+    gradient: F_th runs without it, and the render and gradients are those of running F_th on it
+    too (the same mask with requires_grad set keeps every row)."""
+    scene = tiny(tmp_path_factory, "family-inside")
+    tr = Trainer(small_cfg("dtg", iterations=100), scene, log=lambda _: None)
+    for _ in range(60):
+        tr.step()
+    model = tr.model
+    with torch.no_grad():   # roles as routing leaves them: most Gaussians rgb-only
+        logits = model.gaussians["route_logits"]
+        logits.copy_(torch.randn(logits.shape, generator=torch.Generator().manual_seed(0)))
+    mask = rendering.inference_masks(model)["thermal"]
+    assert 0 < int((mask == 0).sum()) < model.num_gaussians
+    view = scene.train["thermal"][len(scene.train["thermal"]) // 2]
+    ran, residuals = [], model.stage_residuals
+
+    def spy(stage, t, progress, rows=None):
+        if stage == "thermal":
+            ran.append(model.num_gaussians if rows is None else rows.numel())
+        return residuals(stage, t, progress, rows=rows)
+
+    model.stage_residuals = spy
+    out = []
+    for m in (mask, mask.clone().requires_grad_()):
+        model.deformers.zero_grad(set_to_none=True)
+        image, _, _ = rendering.render(model, "thermal", view.time, view.camera, mask=m)
+        (image * torch.linspace(0, 1, image.numel()).view_as(image)).sum().backward()
+        out.append((image.detach(), [p.grad.clone() for p in model.deformers.parameters()]))
+    (a, ga), (b, gb) = out
+    assert ran[0] < ran[1]
+    assert torch.allclose(a, b, atol=1e-6), (a - b).abs().max()
+    for x, y in zip(ga, gb):
+        assert torch.allclose(x, y, atol=1e-6, rtol=1e-4), (x - y).abs().max()

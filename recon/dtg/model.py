@@ -220,7 +220,18 @@ class DTGModel(nn.Module):
                 with torch.no_grad():
                     before = place({k: torch.zeros_like(geo[k]) for k in GEOMETRY})[0]
                 rows = in_view(before, margin=cfg.view_margin)
-            res = {} if later else self.stage_residuals(stage, t, progress, rows=rows)
+            # a Gaussian the routing has removed from this modality for good (a fixed mask's zero: not
+            # drawn, no gradient) needs no residuals, unless another stage reuses this one's geometry
+            routed = None
+            if (mask is not None and not mask.requires_grad and stage in self.deformers
+                    and not (cfg.deformation == "progressive" and modality == "rgb" and self.moves_geometry("rgb"))):
+                routed = mask > 0
+
+            def drawn(rows: torch.Tensor | None) -> torch.Tensor | None:
+                if routed is None:
+                    return rows
+                return torch.nonzero(routed).view(-1) if rows is None else rows[routed.index_select(0, rows)]
+            res = {} if later else self.stage_residuals(stage, t, progress, rows=drawn(rows))
             res = {**{k: torch.zeros_like(geo[k]) for k in GEOMETRY}, **res}
             own = {k: res[k] for k in GEOMETRY}
             gate = self.geometry_gate(stage)
@@ -228,7 +239,8 @@ class DTGModel(nn.Module):
                 own = {k: v * gate[:, None] for k, v in own.items()}
             geo, applied = place(own)
             if later:
-                res = self.stage_residuals(stage, t, progress, rows=in_view({k: v.detach() for k, v in geo.items()}))
+                rows = drawn(in_view({k: v.detach() for k, v in geo.items()}))
+                res = self.stage_residuals(stage, t, progress, rows=rows)
             if f"opacity_{modality}" in res:
                 opacity_logit = opacity_logit + res[f"opacity_{modality}"][:, 0]
             if f"features_{modality}" in res:
