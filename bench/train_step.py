@@ -5,6 +5,7 @@
     python bench/train_step.py --out /tmp/ts --sizes 640x480:100000,640x480:100000@0.5 --methods dtg
     python bench/train_step.py --out /tmp/ts --sizes 160x120:10000 --methods dtg,dtg-nogeo \
         --variant 'dtg-nogeo=dtg:{"model.deform_geometry": []}'
+    python bench/train_step.py --out /tmp/ts --from-run runs/s1 --progress 0.9
 
 For each (method or --variant, size W x H : N Gaussians) a simulated family scene (10 time steps) is trained
 with N initial points and no densification (N stays fixed), on whole frames or with @F on random
@@ -15,6 +16,11 @@ networks' forward, the time embedding, the rigid motion bodies, SSIM's forward, 
 smoothness, routing, autograd's own backward of the torch ops (the networks', SSIM's, ...: what
 `loss.backward()` spends outside the native kernels), Adam, densification statistics and the
 window's body search; "other" is the rest of the step (Python, loss arithmetic, indexing).
+
+Those scenes are timed early in a run (routing all shared, the time window small). --from-run RUN
+(repeatable) times a trained run instead, as it is at the end: its Gaussians, routing roles and
+bodies, resumed from RUN/checkpoints/latest.pt on its dataset, the schedule held at --progress
+(default: the run's own, at most 0.99); --sizes and --methods are then not used.
 Writes train_step.json and train_step.md in --out.
 """
 from __future__ import annotations
@@ -106,6 +112,24 @@ def measure(method: str, variant: tuple[str, dict], width: int, height: int, n: 
     cfg.stop.converge = False
     cfg.crop = crop
     trainer = Trainer(cfg, scene, log=lambda _: None)
+    return timed_steps(trainer, method, f"{width}x{height}", crop, threads, steps, warmup)
+
+
+def measure_run(run: Path, progress: float | None, steps: int, warmup: int, threads: int) -> dict:
+    """Time a trained run as it ended (RUN/checkpoints/latest.pt on the dataset RUN/scene.json names),
+    the schedule held at `progress` (None: where the run ended, at most 0.99)."""
+    data = Path(json.loads((run / "scene.json").read_text())["dataset"])
+    scene = Scene(load_dataset(data))
+    trainer = Trainer.resume(run / "checkpoints" / "latest.pt", scene, log=lambda _: None, threads=threads)
+    p = min(trainer.progress(), 0.99) if progress is None else progress
+    trainer.progress_fn = lambda _: p
+    cam = scene.train["thermal"][0].camera
+    row = timed_steps(trainer, f"{trainer.cfg.method} ({run.parent.name}/{run.name}, p {p:.2f})", f"{cam.width}x{cam.height}",
+                      trainer.cfg.crop, threads, steps, warmup)
+    return {**row, "run": str(run), "progress": p}
+
+
+def timed_steps(trainer: Trainer, method: str, size: str, crop: float, threads: int, steps: int, warmup: int) -> dict:
     for _ in range(warmup):
         trainer.step()
     timers = Timers()
@@ -121,7 +145,7 @@ def measure(method: str, variant: tuple[str, dict], width: int, height: int, n: 
     total = sum(per_step)
     parts = {k: 1000 * v / steps for k, v in sorted(timers.total.items(), key=lambda kv: -kv[1])}
     parts["other (python, loss arithmetic, indexing)"] = 1000 * total / steps - sum(parts.values())
-    return {"method": method, "size": f"{width}x{height}", "crop": crop, "gaussians": trainer.model.num_gaussians,
+    return {"method": method, "size": size, "crop": crop, "gaussians": trainer.model.num_gaussians,
             "threads": threads, "steps": steps, "ms_per_it": 1000 * total / steps,
             "ms_per_it_median": 1000 * statistics.median(per_step), "ms": parts}
 
@@ -149,12 +173,22 @@ def main() -> int:
     ap.add_argument("--steps", type=int, default=30)
     ap.add_argument("--warmup", type=int, default=10)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--from-run", type=Path, action="append", default=[], metavar="RUN",
+                    help="time this trained run (recon run's output folder) as it ended (repeatable)")
+    ap.add_argument("--progress", type=float, default=None,
+                    help="with --from-run: hold the schedule here (default: where the run ended, at most 0.99)")
     args = ap.parse_args()
     variants = dict(parse_variant(v) for v in args.variant)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
+    for run in args.from_run:
+        if not (run / "checkpoints" / "latest.pt").exists():
+            print(f"error: {run}: no checkpoints/latest.pt (a recon run output folder?)", file=sys.stderr)
+            return 2
+        rows.append(measure_run(run, args.progress, args.steps, args.warmup, args.threads))
+        print(f"{rows[-1]['method']}: {rows[-1]['gaussians']} Gaussians, {rows[-1]['ms_per_it']:.1f} ms/it", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
-        for size in args.sizes.split(","):
+        for size in ([] if args.from_run else args.sizes.split(",")):
             size, _, crop = size.partition("@")
             wh, n = size.split(":")
             w, h = (int(v) for v in wh.split("x"))
