@@ -119,6 +119,8 @@ def measure_run(run: Path, progress: float | None, steps: int, warmup: int, thre
     """Time a trained run as it ended (RUN/checkpoints/latest.pt on the dataset RUN/scene.json names),
     the schedule held at `progress` (None: where the run ended, at most 0.99)."""
     data = Path(json.loads((run / "scene.json").read_text())["dataset"])
+    if not (data / "transforms.json").exists():
+        raise SystemExit(f"error: {run / 'scene.json'} names the dataset {data}, which is not there (moved?)")
     scene = Scene(load_dataset(data))
     trainer = Trainer.resume(run / "checkpoints" / "latest.pt", scene, log=lambda _: None, threads=threads)
     p = min(trainer.progress(), 0.99) if progress is None else progress
