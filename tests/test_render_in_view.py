@@ -24,6 +24,19 @@ def narrow_and_wide(model, t, camera, monkeypatch):
     return out
 
 
+def count_thermal_rows(model) -> list[int]:
+    """Spy on the model's F_th: the list it returns gets, per call, the rows the network ran on."""
+    ran, residuals = [], model.stage_residuals
+
+    def spy(stage, t, progress, rows=None):
+        if stage == "thermal":
+            ran.append(model.num_gaussians if rows is None else rows.numel())
+        return residuals(stage, t, progress, rows=rows)
+
+    model.stage_residuals = spy
+    return ran
+
+
 def test_network_on_rows_in_view_renders_and_trains_as_on_all(tmp_path_factory, monkeypatch):
     scene = tiny(tmp_path_factory, "family-inside")
     tr = Trainer(small_cfg("dtg-mlp", iterations=100), scene, log=lambda _: None)
@@ -103,15 +116,7 @@ def test_geometry_network_near_the_view_renders_and_trains_as_on_all(tmp_path_fa
     model = tr.model
     assert model.moves_geometry("thermal")
     view = scene.train["thermal"][len(scene.train["thermal"]) // 2]
-    ran = []
-    residuals = model.stage_residuals
-
-    def spy(stage, t, progress, rows=None):
-        if stage == "thermal":
-            ran.append(model.num_gaussians if rows is None else rows.numel())
-        return residuals(stage, t, progress, rows=rows)
-
-    model.stage_residuals = spy
+    ran = count_thermal_rows(model)
     for camera in (view.camera, view.camera.crop(10, 6, 24, 18)):
         ran.clear()
         (a, ga, _), (b, gb, _) = narrow_and_wide(model, view.time, camera, monkeypatch)
@@ -129,20 +134,13 @@ def test_network_skips_gaussians_the_frozen_routing_removes(tmp_path_factory):
     for _ in range(60):
         tr.step()
     model = tr.model
-    with torch.no_grad():   # roles as routing leaves them: most Gaussians rgb-only
+    with torch.no_grad():   # roles of every kind (the first 60 steps leave them all shared)
         logits = model.gaussians["route_logits"]
         logits.copy_(torch.randn(logits.shape, generator=torch.Generator().manual_seed(0)))
     mask = rendering.inference_masks(model)["thermal"]
     assert 0 < int((mask == 0).sum()) < model.num_gaussians
     view = scene.train["thermal"][len(scene.train["thermal"]) // 2]
-    ran, residuals = [], model.stage_residuals
-
-    def spy(stage, t, progress, rows=None):
-        if stage == "thermal":
-            ran.append(model.num_gaussians if rows is None else rows.numel())
-        return residuals(stage, t, progress, rows=rows)
-
-    model.stage_residuals = spy
+    ran = count_thermal_rows(model)
     out = []
     for m in (mask, mask.clone().requires_grad_()):
         model.deformers.zero_grad(set_to_none=True)
