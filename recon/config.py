@@ -267,6 +267,15 @@ class DensifyConfig:
     # median thermal MAE 3.84 -> 3.84 K, static region 1.89 -> 2.03 K, worst 8.79 -> 7.63 K: off.
     opacity_reset_every: float = 0.0
     reset_opacity: float = 0.01
+    # No Gaussian longer than this many scene extents (largest scale, held after every optimizer
+    # step; 0: unbounded). A family run ends with 40-120 Gaussians longer than the whole scene
+    # (up to 59 m against E = 1.2 m): needles along a training ray, invisible from the training
+    # rig and streaks or a veil from any other (family-outside seed 106, held-out RGB 8.8 dB at
+    # frame 10: one 29 m Gaussian of background colour fills the view).
+    max_scale: float = 0.0
+    # 3DGS's world-space pruning: while densifying, remove Gaussians whose largest scale exceeds
+    # this many scene extents (3DGS and gsplat: 0.1). 0: off.
+    prune_scale: float = 0.0
     auto_stop: bool = False           # stop adding Gaussians when held-out error stops improving
     auto_patience: int = 3            # densification rounds without improvement
     auto_min_gain_db: float = 0.05

@@ -150,3 +150,34 @@ def test_opacity_reset_off_by_default_and_not_at_once_after_resume():
     assert not resumed.reset_opacities(params, opt, 0.35)     # a run resumed mid-period waits for 0.4
     assert torch.equal(params["opacity_rgb"].detach(), before)
     assert resumed.reset_opacities(params, opt, 0.4)
+
+
+def test_scale_bound_holds_the_largest_scale_and_is_off_by_default():
+    params, _ = make(n=20)
+    with torch.no_grad():
+        params["log_scales"][:3] = 5.0                      # e^5 = 148 extents
+    before = params["log_scales"].detach().clone()
+    Strategy(DensifyConfig(), ("rgb", "thermal"), 2.0, torch.Generator()).bound_scales(params["log_scales"].data)
+    assert torch.equal(params["log_scales"].detach(), before)
+    Strategy(DensifyConfig(max_scale=0.5), ("rgb", "thermal"), 2.0,
+             torch.Generator()).bound_scales(params["log_scales"].data)
+    after = params["log_scales"].detach()
+    assert torch.allclose(after[:3], torch.zeros(3, 3))     # log(0.5 x extent 2) = 0
+    small = before < 0
+    assert torch.equal(after[small], before[small])          # what fits stays as it was
+
+
+def test_step_prunes_gaussians_larger_than_prune_scale():
+    params, opt = make(n=30)
+    with torch.no_grad():
+        params["log_scales"][:4, 0] = 1.0                    # e = 2.7 extents along one axis
+        params["opacity_rgb"][:] = params["opacity_thermal"][:] = 3.0     # none is dead
+    cfg = DensifyConfig(every=1, start=0.0, stop=1.0, grad_threshold=1e9, prune_scale=0.1)
+    s = Strategy(cfg, ("rgb", "thermal"), 1.0, torch.Generator().manual_seed(0))
+    s.accumulate("rgb", torch.rand(30, 2), torch.ones(30, dtype=torch.int32), 8, 8)
+    kept = params["log_scales"].detach()[4:].clone()
+    report = s.step(params, opt, iteration=1, progress=0.5)
+    assert_consistent(params, opt)
+    big_left = params["log_scales"].detach().max(1).values > torch.log(torch.tensor(0.1))
+    assert report["pruned"] == 4 + int((kept.max(1).values > torch.log(torch.tensor(0.1))).sum())
+    assert not big_left.any()

@@ -79,6 +79,18 @@ def test_every_per_gaussian_tensor_stays_aligned_after_densify(scene):
             assert st["exp_avg"].shape == p.shape, name
 
 
+def test_scale_bound_holds_through_training(scene):
+    probe = Trainer(small_cfg(iterations=10), scene, log=lambda _: None)
+    largest = probe.model.gaussians["log_scales"].detach().max(1).values.exp()
+    cfg = small_cfg(iterations=30)
+    cfg.densify.max_scale = float(largest.median()) / scene.extent()    # half start above it
+    tr = Trainer(cfg, scene, log=lambda _: None)
+    bound = math.log(cfg.densify.max_scale * scene.extent())
+    while not tr.done():
+        tr.step()
+        assert float(tr.model.gaussians["log_scales"].detach().max()) <= bound + 1e-6
+
+
 def test_resume_continues_bit_for_bit(scene, tmp_path):
     """Same generators, optimizer moments and k-NN graph after resume, and every kernel sums in a
     fixed order whatever the threads (the rasterizer's backward, index_select for neighbour rows):

@@ -11,6 +11,8 @@ thermal-only ones by their own modality's gradient only.
 """
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 
 import torch
@@ -185,6 +187,12 @@ class Strategy:
             swap_parameter(params, optimizer, f"opacity_{m}", lambda x: x.clamp(max=cap), torch.zeros_like)
         return True
 
+    @torch.no_grad()
+    def bound_scales(self, log_scales: torch.Tensor) -> None:
+        """In place: log_scales (N, 3) held at most log(max_scale x extent), if bounded."""
+        if self.cfg.max_scale > 0:
+            log_scales.clamp_(max=math.log(self.cfg.max_scale * self.extent))
+
     def active(self, iteration: int, progress: float) -> bool:
         return (self.cfg.start <= progress < self.cfg.stop and iteration > 0
                 and iteration % self.cfg.every == 0)
@@ -220,6 +228,8 @@ class Strategy:
             split(params, optimizer, to_split, self.generator)
             roles = routing.hard_roles(params["route_logits"].detach()) if "route_logits" in params else None
         dead = self.dead(params, roles)
+        if self.cfg.prune_scale > 0:
+            dead |= params["log_scales"].detach().max(1).values > math.log(self.cfg.prune_scale * self.extent)
         report["pruned"] = int(dead.sum())
         if dead.any() and dead.sum() < dead.numel():
             remove(params, optimizer, dead)

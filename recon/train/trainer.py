@@ -245,6 +245,7 @@ class Trainer:
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
+        self.strategy.bound_scales(gs["log_scales"].data)
         if self.model.motion is not None:
             self.model.motion.keep_within(gs["means"].data, gs["log_scales"].data, gs["motion_basis"])
         # a window's loss is a mean over its pixels only: scaled back to a whole frame's, the
