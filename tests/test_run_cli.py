@@ -147,11 +147,12 @@ def test_by_default_the_scene_chooses_the_length_within_the_cap(tmp_path):
     assert config["stop"]["converge"] and config["minutes"] == 0.25
 
 
-def test_windows_and_coarse_to_fine_from_the_command_line(run, tmp_path):
+def test_windows_coarse_to_fine_and_scale_bound_from_the_command_line(run, tmp_path):
     data, _ = run
     recon("run", data, "--out", tmp_path / "r", "--iterations", 12, "--threads", 1, "--crop", 0.5,
-          "--coarse-to-fine", 1)
+          "--coarse-to-fine", 1, "--max-scale", 0.3)
     config = json.loads((tmp_path / "r" / "config.json").read_text())
     assert config["crop"] == 0.5 and config["resolution"] == [[0.0, 2], [config["stop"]["hold_at"], 1]]
+    assert config["densify"]["max_scale"] == 0.3
     res = recon("run", data, "--out", tmp_path / "bad", "--crop", 1.5, check=False)
     assert res.returncode == 2 and "--crop: must be at most 1, got 1.5" in res.stderr
