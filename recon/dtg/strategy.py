@@ -12,7 +12,6 @@ thermal-only ones by their own modality's gradient only.
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass, field
 
 import torch
