@@ -32,3 +32,30 @@ def test_rasterizer_bench_measures_our_implementations(tmp_path):
         assert r["forward_ms"] > 0 and r["forward_backward_ms"] > 0, r
     stages = records[0]["breakdown_ms"]
     assert stages["tile_pairs"] > 0 and stages["visible"] > 1000, stages
+
+
+def test_trained_model_bench_measures_two_checkouts(tmp_path):
+    """bench/raster_trained.py against a second checkout (here: this one again) on a small PLY."""
+    import torch
+
+    from recon.splat.ply import write_gaussians_ply
+    from tests.splat_scenes import look_at, random_gaussians
+
+    g = random_gaussians(300, 3, seed=4)
+    write_gaussians_ply(tmp_path / "m.ply", g.means, g.quats, g.log_scales, torch.logit(g.opacities),
+                        g.features[:, None, :])
+    c2w_gl = torch.linalg.inv(look_at((0.3, -0.2, -4.0), (0.0, 0.0, 0.0)).double()) @ torch.diag(
+        torch.tensor([1.0, -1.0, -1.0, 1.0], dtype=torch.float64))
+    (tmp_path / "transforms.json").write_text(json.dumps(
+        {"fl_x": 40.0, "fl_y": 40.0, "cx": 24.0, "cy": 16.0, "w": 48, "h": 32,
+         "frames": [{"file_path": "rgb/0.png", "transform_matrix": c2w_gl.tolist()}]}))
+    out = tmp_path / "rt.json"
+    run = subprocess.run([sys.executable, "bench/raster_trained.py", "--ply", str(tmp_path / "m.ply"),
+                          "--transforms", str(tmp_path / "transforms.json"), "--scale", "1,2", "--reps", "2",
+                          "--against", str(ROOT), "--out", str(out)], cwd=ROOT, capture_output=True, text=True,
+                         timeout=300)
+    assert run.returncode == 0, run.stdout + run.stderr
+    result = json.loads(out.read_text())
+    assert len(result["rounds"]) == 4 and {r["size"] for r in result["rounds"]} == {"48x32", "96x64"}
+    for name in ("this x1", "against x2"):
+        assert result["median"][name]["tile_pairs"] > 0 and result["median"][name]["total"] > 0

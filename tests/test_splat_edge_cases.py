@@ -180,3 +180,33 @@ def test_thread_count_does_not_change_the_result():
         assert torch.equal(image, results[0][0])
         for a, b in zip(grads, results[0][1]):
             assert torch.allclose(a, b, rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("angle,length,width", [(0.0, 40.0, 1.5), (0.6, 40.0, 1.5), (2.3, 40.0, 1.5),
+                                                (0.6, 600.0, 0.0)])
+def test_tile_lists_hold_only_tiles_a_footprint_reaches(angle, length, width):
+    """A long thin footprint's pixel box covers the whole 64x48 image (12 tiles); a tilted one is
+    listed only in the tiles along its axis, an axis-aligned one in the row it lies in, and every
+    pixel still gets exactly o exp(-q/2) of it (computed here in float64, without tiles). The last
+    is a needle 2000 times longer than wide (its conic's determinant cancels to 1e-7 of ac)."""
+    import numpy as np
+    from recon.splat import _native
+
+    w, h, o = 64, 48, 0.8
+    rot = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    cov = rot @ np.diag([length ** 2, width ** 2]) @ rot.T + 0.3 * np.eye(2)
+    conic = np.linalg.inv(cov).astype(np.float32).astype(np.float64)  # as the rasterizer gets it
+    mean = np.array([31.3, 22.7])
+    f = lambda *a: np.ascontiguousarray(np.array(a, dtype=np.float32))
+    image, _, _, _, _, tx, ty, offsets, ids, _, _ = _native.rasterize_forward(
+        f(mean), f([conic[0, 0], conic[0, 1], conic[1, 1]]), f([1.0]), f(o), f(1.0),
+        np.array([40], dtype=np.int32), w, h, 1 << 20, 2)
+    listed = np.diff(offsets).reshape(ty, tx)
+    ys, xs = np.mgrid[0:h, 0:w] + 0.5
+    d = np.stack([xs - mean[0], ys - mean[1]], -1)
+    a = o * np.exp(-0.5 * np.einsum("hwi,ij,hwj->hw", d, conic, d))
+    want = np.where(a >= 1 / 255, np.minimum(a, 0.99), 0.0)
+    reached = (want > 0).reshape(ty, 16, tx, 16).any((1, 3))
+    assert np.array_equal(listed > 0, reached), (listed, reached)
+    assert listed.sum() < 12 if angle else listed.sum() == 4
+    assert np.abs(image[..., 0] - want).max() < TOL

@@ -126,17 +126,21 @@ inline f8 log8(f8 x) {
   return m + y + e * splat8(0.693359375f);
 }
 
+// Squared Mahalanobis radius q within which a Gaussian of this opacity can reach alpha >= 1/255:
+// o*exp(-q/2) >= 1/255  <=>  q <= 2 ln(255 o), with a small relative margin that keeps every
+// test built on it conservative against float rounding of the per-pixel evaluation.
+inline double reach_r2(float opacity) { return 2.0 * std::log(255.0 * (double)opacity) * 1.001 + 1e-3; }
+
 // Pixel bounding box [x0,x1]x[y0,y1] (inclusive, clipped to the image) of the region where a
 // Gaussian can reach alpha >= 1/255: o*exp(-q/2) >= 1/255  <=>  q <= 2 ln(255 o). Its extent
 // along x is sqrt(r2 * Sigma_xx) (likewise y), Sigma = inverse conic. Pixel centres are at
-// (x+0.5, y+0.5). A small relative margin keeps the box conservative against float rounding
-// of the per-pixel evaluation. Returns false when the region misses the image.
+// (x+0.5, y+0.5). Returns false when the region misses the image; r2 := reach_r2(opacity).
 inline bool gaussian_bbox(float mx, float my, float ca, float cb, float cc, float opacity,
-                          int width, int height, int32_t box[4]) {
+                          int width, int height, int32_t box[4], double& r2) {
   if (!(opacity >= kAlphaMin)) return false;
   const double det = (double)ca * cc - (double)cb * cb;
   if (!(det > 0.0)) return false;
-  const double r2 = 2.0 * std::log(255.0 * (double)opacity) * 1.001 + 1e-3;
+  r2 = reach_r2(opacity);
   const double ex = std::sqrt(r2 * (double)cc / det);
   const double ey = std::sqrt(r2 * (double)ca / det);
   const double fx0 = std::ceil(mx - ex - 0.5), fx1 = std::floor(mx + ex - 0.5);

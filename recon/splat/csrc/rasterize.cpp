@@ -66,6 +66,61 @@ inline int64_t box_tiles(const int32_t* box) {
   return (int64_t)(box[1] / kTile - box[0] / kTile + 1) * (box[3] / kTile - box[2] / kTile + 1);
 }
 
+// Bit j (row-major over the tiles of Gaussian g's pixel box) set when g reaches a pixel centre of
+// that tile (q <= r2, see reach_r2). A box reports the corner tiles of a tilted or round footprint
+// too, and each listed pair costs a visit of its strips in the forward and the backward (a trained
+// model's footprints are long and tilted: 15 % fewer pairs, a third less compositing at 640x480).
+// Per row of tiles, the footprint's x-range over that row's pixel-centre band: with
+// q = a (dx + b dy / a)^2 + (det / a) dy^2, the left edge -b dy / a - sqrt((r2 - det dy^2 / a) / a)
+// is convex in dy, so its minimum over the band is at the ellipse's leftmost point (dy = b ex / c)
+// clamped to the band; the right edge mirrors it. Only a box spanning several tiles both ways can
+// miss one (an ellipse meets every tile of a one-row or one-column box); boxes of more than 64
+// tiles keep every tile.
+__attribute__((noinline)) uint64_t reached_tiles(const RasterScene& s, int64_t g, const int32_t* box,
+                                                 double r2) {
+  const float a = s.conics[3 * g], b = s.conics[3 * g + 1], c = s.conics[3 * g + 2];
+  // A footprint that is round or axis-aligned (correlation of its axes below 0.5) misses only
+  // corner tiles where its strips stop before their exp (power_cutoffs): cheaper than this test.
+  if (b * b < 0.25f * a * c) return ~0ull;
+  const int tx0 = box[0] / kTile, tx1 = box[1] / kTile, ty0 = box[2] / kTile, ty1 = box[3] / kTile;
+  const int bw = tx1 - tx0 + 1, bh = ty1 - ty0 + 1;
+  if (bw == 1 || bh == 1 || bw * bh > 64) return ~0ull;
+  // double, as gaussian_bbox: a needle's det = ac - b^2 cancels almost entirely
+  const double mx = s.means2d[2 * g], my = s.means2d[2 * g + 1];
+  const double det = (double)a * c - (double)b * b, inv_a = 1.0 / a;
+  const double ey = std::sqrt(r2 * a / det), ex = std::sqrt(r2 * c / det);
+  const double slope = -b * inv_a, beta = det * inv_a, dy_left = b * ex / c;
+  const auto edge = [&](double dy, double side) {
+    return mx + slope * dy + side * std::sqrt(std::max(0.0, (r2 - beta * dy * dy) * inv_a));
+  };
+  uint64_t mask = 0;
+  for (int ty = ty0, j = 0; ty <= ty1; ++ty) {
+    const double lo = std::max(std::max(box[2], ty * kTile) + 0.5 - my, -ey);
+    const double hi = std::min(std::min(box[3], ty * kTile + kTile - 1) + 0.5 - my, ey);
+    const double left = edge(std::clamp(dy_left, std::min(lo, hi), hi), -1.0);
+    const double right = edge(std::clamp(-dy_left, std::min(lo, hi), hi), 1.0);
+    for (int tx = tx0; tx <= tx1; ++tx, ++j)
+      if (tx * kTile + kTile - 0.5 >= left && tx * kTile + 0.5 <= right) mask |= 1ull << j;
+  }
+  return mask;
+}
+
+inline bool listed(uint64_t reach, int j) { return reach == ~0ull || ((reach >> j) & 1u); }
+
+// Per Gaussian, the power (-q/2) below which it cannot reach alpha >= 1/255 (conservative, see
+// reach_r2): a strip with every lane below it is skipped before its exp.
+std::vector<float> power_cutoffs(const RasterScene& s, int threads) {
+  std::vector<float> cut((s.n + kLanes - 1) / kLanes * kLanes);
+#pragma omp parallel for num_threads(threads) schedule(static, 256)
+  for (int64_t i = 0; i < s.n; i += kLanes) {
+    f8 o;
+    for (int l = 0; l < kLanes; ++l) o[l] = i + l < s.n ? s.opacities[i + l] : 1.f;
+    const f8 cv = splat8(-1.001f) * log8(max8(o * splat8(255.f), splat8(1.f))) - splat8(5e-4f);
+    std::memcpy(cut.data() + i, &cv, 32);
+  }
+  return cut;
+}
+
 struct GaussianParams {
   float mx, my, a, b, c, o, z;
 };
@@ -91,7 +146,10 @@ void bin_gaussians(const RasterScene& s, int64_t max_pairs, int threads, Binning
   bins.tiles_y = (s.height + kTile - 1) / kTile;
   const int64_t n_tiles = (int64_t)bins.tiles_x * bins.tiles_y;
   bins.boxes.assign(4 * n, 0);
-  std::vector<uint8_t> visible(n, 0);
+  std::vector<uint8_t> visible(n, 0);  // 0: culled, 1: every tile of its box, kMasked: reach[i]
+  constexpr uint8_t kMasked = 2;
+  constexpr int32_t kMaskedBit = INT32_MIN;  // on order[k]: the passes below need no load to know
+  const std::unique_ptr<uint64_t[]> reach(new uint64_t[n]);  // set where visible[i] == kMasked
 #pragma omp parallel for num_threads(threads) schedule(static, 2048)
   for (int64_t i = 0; i < n; ++i) {
     int32_t* box = bins.boxes.data() + 4 * i;
@@ -100,10 +158,19 @@ void bin_gaussians(const RasterScene& s, int64_t max_pairs, int threads, Binning
     box[2] = 0;
     box[3] = -1;
     if (s.radii[i] <= 0) continue;
+    double r2;
     visible[i] = gaussian_bbox(s.means2d[2 * i], s.means2d[2 * i + 1], s.conics[3 * i],
                                s.conics[3 * i + 1], s.conics[3 * i + 2], s.opacities[i],
-                               s.width, s.height, box);
-    if (!visible[i]) box[1] = box[3] = -1;
+                               s.width, s.height, box, r2);
+    if (!visible[i]) {
+      box[1] = box[3] = -1;
+    } else {
+      const uint64_t mask = reached_tiles(s, i, box, r2);
+      if (mask != ~0ull) {  // rare on a dense scene of small round Gaussians: a flag, not a load
+        reach[i] = mask;
+        visible[i] = kMasked;
+      }
+    }
   }
   std::vector<int32_t> order;
   std::vector<uint32_t> keys;
@@ -111,7 +178,7 @@ void bin_gaussians(const RasterScene& s, int64_t max_pairs, int threads, Binning
   keys.reserve(n);
   for (int64_t i = 0; i < n; ++i)
     if (visible[i]) {
-      order.push_back((int32_t)i);
+      order.push_back((int32_t)i | (visible[i] == kMasked ? kMaskedBit : 0));
       keys.push_back(sort_key(s.depths[i]));
     }
   radix_sort(keys, order);  // stable: equal depths keep index order
@@ -129,12 +196,17 @@ void bin_gaussians(const RasterScene& s, int64_t max_pairs, int threads, Binning
     int64_t* cnt = counts.data() + (size_t)c * n_tiles;
     int64_t total = 0;
     for (int64_t k = lo; k < hi; ++k) {
-      const int32_t* box = bins.boxes.data() + 4 * (int64_t)order[k];
+      const int32_t g = order[k] & ~kMaskedBit;
+      const int32_t* box = bins.boxes.data() + 4 * (int64_t)g;
       const int tx0 = box[0] / kTile, tx1 = box[1] / kTile;
       const int ty0 = box[2] / kTile, ty1 = box[3] / kTile;
-      for (int ty = ty0; ty <= ty1; ++ty)
-        for (int tx = tx0; tx <= tx1; ++tx) ++cnt[(int64_t)ty * bins.tiles_x + tx];
-      total += (int64_t)(tx1 - tx0 + 1) * (ty1 - ty0 + 1);
+      const uint64_t tiles = (order[k] & kMaskedBit) ? reach[g] : ~0ull;
+      for (int ty = ty0, j = 0; ty <= ty1; ++ty)
+        for (int tx = tx0; tx <= tx1; ++tx, ++j)
+          if (listed(tiles, j)) {
+            ++cnt[(int64_t)ty * bins.tiles_x + tx];
+            ++total;
+          }
     }
     chunk_pairs[c] = total;
   }
@@ -165,11 +237,12 @@ void bin_gaussians(const RasterScene& s, int64_t max_pairs, int threads, Binning
     const int64_t lo = m * c / nc, hi = m * (c + 1) / nc;
     int64_t* pos = start.data() + (size_t)c * n_tiles;
     for (int64_t k = lo; k < hi; ++k) {
-      const int32_t g = order[k];
+      const int32_t g = order[k] & ~kMaskedBit;
       const int32_t* box = bins.boxes.data() + 4 * (int64_t)g;
-      for (int ty = box[2] / kTile; ty <= box[3] / kTile; ++ty)
-        for (int tx = box[0] / kTile; tx <= box[1] / kTile; ++tx)
-          bins.ids[pos[(int64_t)ty * bins.tiles_x + tx]++] = g;
+      const uint64_t tiles = (order[k] & kMaskedBit) ? reach[g] : ~0ull;
+      for (int ty = box[2] / kTile, j = 0; ty <= box[3] / kTile; ++ty)
+        for (int tx = box[0] / kTile; tx <= box[1] / kTile; ++tx, ++j)
+          if (listed(tiles, j)) bins.ids[pos[(int64_t)ty * bins.tiles_x + tx]++] = g;
     }
   }
 }
@@ -178,6 +251,7 @@ void rasterize_forward(const RasterScene& s, const BinView& bins, float* image, 
                        float* depth, float* final_T, int32_t* last, int threads) {
   const int C = s.channels;
   const int64_t n_tiles = (int64_t)bins.tiles_x * bins.tiles_y;
+  const std::vector<float> cut = power_cutoffs(s, std::max(1, threads));
 #pragma omp parallel num_threads(std::max(1, threads))
   {
     alignas(32) float T[kTilePixels], D[kTilePixels];
@@ -210,6 +284,7 @@ void rasterize_forward(const RasterScene& s, const BinView& bins, float* image, 
         const TileBox tb = tile_box(bins.boxes + 4 * (int64_t)g, px0, py0);
         const float* col = s.colors + (int64_t)g * C;
         const i8 kv = spliti8((int32_t)(k - k0));
+        const f8 cutv = splat8(cut[g]);
         for (int r = tb.row0; r <= tb.row1; ++r) {
           if (row_live[r] == 0) continue;
           for (int st = tb.strip0; st <= tb.strip1; ++st) {
@@ -217,6 +292,7 @@ void rasterize_forward(const RasterScene& s, const BinView& bins, float* image, 
             f8 dx;
             float dy;
             const f8 power = strip_power(gp, px0 + st * kLanes, py0 + r, dx, dy);
+            if (!any8(power >= cutv)) continue;
             f8 a = splat8(gp.o) * exp8(power);
             a = a > splat8(kAlphaMax) ? splat8(kAlphaMax) : a;
             i8 dn;
@@ -275,6 +351,7 @@ void rasterize_backward(const RasterScene& s, const BinView& bins, const float* 
   const int64_t n = s.n;
   const int64_t n_tiles = (int64_t)bins.tiles_x * bins.tiles_y;
   const int nt = std::max(1, threads);
+  const std::vector<float> cut = power_cutoffs(s, nt);
   // Deterministic: each (tile, Gaussian) pair writes its own gradient record (no atomics, no
   // per-thread sums), then every Gaussian sums its records in tile order. Tiles are still handed
   // out dynamically (robust to a core taken by another process), yet the gradients are the same
@@ -294,10 +371,9 @@ void rasterize_backward(const RasterScene& s, const BinView& bins, const float* 
   written.assign(first[n], 0);
   float* const rec = recs.data();   // thread_local: OpenMP's threads must use these pointers
   uint8_t* const wrote = written.data();
-  const auto slot = [&](int32_t g, int64_t tile) -> int64_t {
+  const auto slot = [&](int32_t g, int tx, int ty) -> int64_t {
     const int32_t* box = bins.boxes + 4 * (int64_t)g;
     const int tx0 = box[0] / kTile, tx1 = box[1] / kTile, ty0 = box[2] / kTile;
-    const int tx = (int)(tile % bins.tiles_x), ty = (int)(tile / bins.tiles_x);
     return first[g] + (int64_t)(ty - ty0) * (tx1 - tx0 + 1) + (tx - tx0);
   };
 #pragma omp parallel num_threads(nt)
@@ -310,7 +386,8 @@ void rasterize_backward(const RasterScene& s, const BinView& bins, const float* 
     f8* gcol = buf.data() + (size_t)2 * C * kTilePixels / kLanes;  // (C) lane accumulators
 #pragma omp for schedule(dynamic, 1)
     for (int64_t tile = 0; tile < n_tiles; ++tile) {
-      const int px0 = (int)(tile % bins.tiles_x) * kTile, py0 = (int)(tile / bins.tiles_x) * kTile;
+      const int tx = (int)(tile % bins.tiles_x), ty = (int)(tile / bins.tiles_x);
+      const int px0 = tx * kTile, py0 = ty * kTile;
       int kmax = -1;
       for (int r = 0; r < kTile; ++r) {
         for (int x = 0; x < kTile; ++x) {
@@ -336,6 +413,7 @@ void rasterize_backward(const RasterScene& s, const BinView& bins, const float* 
         const TileBox tb = tile_box(bins.boxes + 4 * (int64_t)g, px0, py0);
         const float* col = s.colors + (int64_t)g * C;
         const i8 kv = spliti8((int32_t)(k - k0));
+        const f8 cutv = splat8(cut[g]);
         f8 gmx = splat8(0.f), gmy = gmx, ga = gmx, gb = gmx, gc = gmx, go = gmx, gz = gmx;
         for (int c = 0; c < C; ++c) gcol[c] = splat8(0.f);
         bool touched = false;
@@ -349,6 +427,7 @@ void rasterize_backward(const RasterScene& s, const BinView& bins, const float* 
             f8 dx;
             float dy;
             const f8 power = strip_power(gp, px0 + st * kLanes, py0 + r, dx, dy);
+            if (!any8(in_range & (power >= cutv))) continue;
             const f8 G = exp8(power);
             const f8 ao = splat8(gp.o) * G;
             const f8 a = ao > splat8(kAlphaMax) ? splat8(kAlphaMax) : ao;
@@ -388,7 +467,7 @@ void rasterize_backward(const RasterScene& s, const BinView& bins, const float* 
           }
         }
         if (!touched) continue;
-        const int64_t r = slot(g, tile);
+        const int64_t r = slot(g, tx, ty);
         wrote[r] = 1;
         float* gr = rec + (size_t)r * stride;
         gr[0] = hsum8(gmx);
