@@ -273,10 +273,6 @@ class DensifyConfig:
     # rig and streaks or a veil from any other (family-outside seed 106, held-out RGB at frame 10:
     # its three longest Gaussians, two of them 23 and 29 m, fill the view; 8.8 dB, 16.1 without them).
     max_scale: float = 0.0
-    # No needles: the largest scale held at most this many times the second largest (after every
-    # optimizer step; 0: unbounded). Unlike max_scale it leaves flat Gaussians (floor, walls) alone.
-    # In family runs 10-20 % of Gaussians have a ratio above 10, the long ones up to 1000.
-    max_aspect: float = 0.0
     # 3DGS's world-space pruning: while densifying, remove Gaussians whose largest scale exceeds
     # this many scene extents (3DGS and gsplat: 0.1). 0: off.
     prune_scale: float = 0.0

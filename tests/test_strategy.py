@@ -1,7 +1,5 @@
 """Densification ops keep every per-Gaussian tensor and its optimizer state the same length, and
 children inherit their parent's values and Adam moments."""
-import math
-
 import torch
 from torch import nn
 
@@ -167,27 +165,6 @@ def test_scale_bound_holds_the_largest_scale_and_is_off_by_default():
     assert torch.allclose(after[:3], torch.zeros(3, 3))     # log(0.5 x extent 2) = 0
     small = before < 0
     assert torch.equal(after[small], before[small])          # what fits stays as it was
-
-
-def test_aspect_bound_shortens_needles_and_leaves_discs_alone():
-    params, _ = make(n=6)
-    ls = torch.tensor([[3.0, 0.0, -0.5],      # needle along x: e^3 = 20 x its second axis
-                       [-1.0, -1.0, 2.0],     # needle along z
-                       [1.0, 1.0, -4.0],      # flat disc: largest = second
-                       [0.5, 0.0, 0.2],       # aspect e^0.3 < 2: as it was
-                       [-2.0, 4.0, 4.0],      # two largest equal: a disc
-                       [0.0, 0.0, 0.0]])
-    with torch.no_grad():
-        params["log_scales"][:] = ls
-    Strategy(DensifyConfig(max_aspect=2.0), ("rgb", "thermal"), 2.0,
-             torch.Generator()).bound_scales(params["log_scales"].data)
-    after = params["log_scales"].detach()
-    want = ls.clone()
-    want[0, 0] = 0.0 + math.log(2.0)
-    want[1, 2] = -1.0 + math.log(2.0)
-    assert torch.allclose(after, want)
-    sorted_ = after.sort(1, descending=True).values
-    assert (sorted_[:, 0] - sorted_[:, 1] <= math.log(2.0) + 1e-6).all()
 
 
 def test_step_prunes_gaussians_larger_than_prune_scale():

@@ -188,14 +188,9 @@ class Strategy:
 
     @torch.no_grad()
     def bound_scales(self, log_scales: torch.Tensor) -> None:
-        """In place: log_scales (N, 3) held at most log(max_scale x extent), and the largest at
-        most max_aspect times the second largest, where those bounds are set."""
+        """In place: log_scales (N, 3) held at most log(max_scale x extent), if bounded."""
         if self.cfg.max_scale > 0:
             log_scales.clamp_(max=math.log(self.cfg.max_scale * self.extent))
-        if self.cfg.max_aspect > 0:
-            largest, axis = log_scales.max(1, keepdim=True)
-            second = log_scales.sum(1, keepdim=True) - largest - log_scales.min(1, keepdim=True).values
-            log_scales.scatter_(1, axis, torch.minimum(largest, second + math.log(self.cfg.max_aspect)))
 
     def active(self, iteration: int, progress: float) -> bool:
         return (self.cfg.start <= progress < self.cfg.stop and iteration > 0
