@@ -38,14 +38,14 @@ def test_trained_model_bench_measures_two_checkouts(tmp_path):
     """bench/raster_trained.py against a second checkout (here: this one again) on a small PLY."""
     import torch
 
+    from recon.data.frame import c2w_opencv_to_opengl
     from recon.splat.ply import write_gaussians_ply
     from tests.splat_scenes import look_at, random_gaussians
 
     g = random_gaussians(300, 3, seed=4)
     write_gaussians_ply(tmp_path / "m.ply", g.means, g.quats, g.log_scales, torch.logit(g.opacities),
                         g.features[:, None, :])
-    c2w_gl = torch.linalg.inv(look_at((0.3, -0.2, -4.0), (0.0, 0.0, 0.0)).double()) @ torch.diag(
-        torch.tensor([1.0, -1.0, -1.0, 1.0], dtype=torch.float64))
+    c2w_gl = c2w_opencv_to_opengl(torch.linalg.inv(look_at((0.3, -0.2, -4.0), (0.0, 0.0, 0.0)).double()).numpy())
     (tmp_path / "transforms.json").write_text(json.dumps(
         {"fl_x": 40.0, "fl_y": 40.0, "cx": 24.0, "cy": 16.0, "w": 48, "h": 32,
          "frames": [{"file_path": "rgb/0.png", "transform_matrix": c2w_gl.tolist()}]}))

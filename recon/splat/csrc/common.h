@@ -127,9 +127,11 @@ inline f8 log8(f8 x) {
 }
 
 // Squared Mahalanobis radius q within which a Gaussian of this opacity can reach alpha >= 1/255:
-// o*exp(-q/2) >= 1/255  <=>  q <= 2 ln(255 o), with a small relative margin that keeps every
-// test built on it conservative against float rounding of the per-pixel evaluation.
-inline double reach_r2(float opacity) { return 2.0 * std::log(255.0 * (double)opacity) * 1.001 + 1e-3; }
+// o*exp(-q/2) >= 1/255  <=>  q <= 2 ln(255 o), widened to 2 ln(255 o) kReachScale + kReachPad so
+// that every test built on it (pixel box, tile lists, strip cut-offs, the projection's culling)
+// stays conservative against float rounding of the per-pixel evaluation.
+constexpr double kReachScale = 1.001, kReachPad = 1e-3;
+inline double reach_r2(float opacity) { return 2.0 * std::log(255.0 * (double)opacity) * kReachScale + kReachPad; }
 
 // Pixel bounding box [x0,x1]x[y0,y1] (inclusive, clipped to the image) of the region where a
 // Gaussian can reach alpha >= 1/255: o*exp(-q/2) >= 1/255  <=>  q <= 2 ln(255 o). Its extent

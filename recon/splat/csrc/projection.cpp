@@ -194,7 +194,7 @@ void project_forward(int64_t n, const float* means, const float* quats, const fl
       const f8 r2 = 2.f * log8(max8(255.f * o, splat8(1.f)));
       // Cull with gaussian_bbox's pixel box (which the rasterizer applies exactly), widened by
       // far more than float rounding: nothing the rasterizer would draw is culled here.
-      const f8 rb = r2 * 1.001f + 1e-3f;
+      const f8 rb = r2 * (float)kReachScale + (float)kReachPad;
       const f8 ex = sqrt8(rb * b.A) * 1.0001f + 1e-3f, ey = sqrt8(rb * b.C) * 1.0001f + 1e-3f;
       const f8 x0 = ceil8(mx - ex - 0.5f), x1 = floor8(mx + ex - 0.5f);
       const f8 y0 = ceil8(my - ey - 0.5f), y1 = floor8(my + ey - 0.5f);

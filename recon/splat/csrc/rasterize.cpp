@@ -107,15 +107,17 @@ __attribute__((noinline)) uint64_t reached_tiles(const RasterScene& s, int64_t g
 
 inline bool listed(uint64_t reach, int j) { return reach == ~0ull || ((reach >> j) & 1u); }
 
-// Per Gaussian, the power (-q/2) below which it cannot reach alpha >= 1/255 (conservative, see
-// reach_r2): a strip with every lane below it is skipped before its exp.
+// Per Gaussian, -reach_r2 / 2: the power (-q/2) below which it cannot reach alpha >= 1/255
+// (vectorised in float; the margin dwarfs its rounding): a strip with every lane below it is
+// skipped before its exp.
 std::vector<float> power_cutoffs(const RasterScene& s, int threads) {
   std::vector<float> cut((s.n + kLanes - 1) / kLanes * kLanes);
 #pragma omp parallel for num_threads(threads) schedule(static, 256)
   for (int64_t i = 0; i < s.n; i += kLanes) {
     f8 o;
     for (int l = 0; l < kLanes; ++l) o[l] = i + l < s.n ? s.opacities[i + l] : 1.f;
-    const f8 cv = splat8(-1.001f) * log8(max8(o * splat8(255.f), splat8(1.f))) - splat8(5e-4f);
+    const f8 cv = splat8(-(float)kReachScale) * log8(max8(o * splat8(255.f), splat8(1.f))) -
+                  splat8((float)(0.5 * kReachPad));
     std::memcpy(cut.data() + i, &cv, 32);
   }
   return cut;
