@@ -15,6 +15,7 @@ from pathlib import Path
 
 import torch
 
+from recon.alloc import retain_freed_memory
 from recon.config import TrainConfig, config_from_dict, config_to_dict
 from recon.dtg import routing
 from recon.dtg.losses import EmbeddingSmoothness, rgb_loss, thermal_loss, trimmed_l1
@@ -59,6 +60,7 @@ class Trainer:
             raise ValueError(f"method {cfg.method} trains {missing} but the dataset has no such training frames")
         if cfg.threads:
             torch.set_num_threads(cfg.threads)
+        retain_freed_memory()       # a step's large tensors are reused, not page-faulted in again
         torch.manual_seed(cfg.seed)
         self.gen = torch.Generator().manual_seed(cfg.seed)
         self.extent = scene.extent()
