@@ -59,3 +59,46 @@ def test_trained_model_bench_measures_two_checkouts(tmp_path):
     assert len(result["rounds"]) == 4 and {r["size"] for r in result["rounds"]} == {"48x32", "96x64"}
     for name in ("this x1", "against x2"):
         assert result["median"][name]["tile_pairs"] > 0 and result["median"][name]["total"] > 0
+
+
+def test_long_gaussians_bench_measures_what_training_views_see(tmp_path):
+    """bench/long_gaussians.py: its two measures checked on known cases, then a run end to end."""
+    import math
+
+    import torch
+
+    from recon.splat.cameras import PinholeCamera
+    from tests.splat_scenes import look_at, random_gaussians
+
+    sys.path.insert(0, str(ROOT / "bench"))
+    try:
+        lg = importlib.import_module("long_gaussians")
+    finally:
+        sys.path.remove(str(ROOT / "bench"))
+    camera = PinholeCamera(look_at((0.0, 0.0, -4.0), (0.0, 0.0, 0.0)).float(), 40.0, 40.0, 24.0, 16.0, 48, 32)
+    # a needle (1 x 0.01 x 0.01) along the ray through the origin, then turned across it
+    along = {"means": torch.zeros(2, 3), "log_scales": torch.tensor([[0.01, 0.01, 1.0]] * 2).log(),
+             "quats": torch.tensor([[1.0, 0.0, 0.0, 0.0], [math.cos(math.pi / 4), math.sin(math.pi / 4), 0.0, 0.0]])}
+    extent, seen = lg.across_ray(along, camera)
+    assert seen.all()
+    assert abs(float(extent[0]) - 0.01) < 1e-4 and abs(float(extent[1]) - 1.0) < 1e-4
+    # blending weights summed over Gaussians are the render's coverage, pixel for pixel summed
+    g = random_gaussians(40, 1, seed=3)
+    g = {"means": g.means, "quats": g.quats, "log_scales": g.log_scales, "opacities": g.opacities}
+    weights = lg.pixel_weights(g, camera)
+    out = lg.rasterization(g["means"], g["quats"], g["log_scales"], g["opacities"], torch.zeros(40, 1, 1),
+                           *camera.args(), sh_degree=0)
+    assert (weights >= 0).all() and abs(float(weights.sum()) - float(out.alpha.sum())) < 1e-3 * float(out.alpha.sum())
+
+    def cli(*argv):
+        done = subprocess.run(argv, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stdout + done.stderr
+
+    cli("recon", "simulate", "d", "--frames", "4", "--size", "48x36", "--points", "300")
+    cli("recon", "run", "d", "--out", "r", "--iterations", "20", "--threads", "1")
+    cli(sys.executable, str(ROOT / "bench" / "long_gaussians.py"), "r", "--out", "o.json")
+    (result,) = json.loads((tmp_path / "o.json").read_text())
+    assert set(result["graded"]) == set(lg.VARIANTS)
+    none = result["graded"]["none"]
+    assert none["rgb_psnr"] > 10 and none["thermal_mae_k"] > 0
+    assert result["under_weight"]["0.05"] <= result["under_weight"]["1.0"] <= result["gaussians"]
