@@ -3,8 +3,8 @@
 A training step allocates and frees the same few dozen tensors every iteration; at 640x480 many of
 them are 1-30 MB (images, (N, 32) embedding gradients, per-Gaussian arrays). With glibc's defaults a
 block that large is mmap'ed when allocated and unmapped when freed (or the heap top is trimmed), so
-every step pays a page fault and a page zeroing per 4 kB of it: about 1400 faults, 5-6 MB, per
-640x480 windowed step. `retain_freed_memory` sets glibc's mmap threshold to its maximum (32 MB)
+every step pays a page fault and a page zeroing per 4 kB of it: 1120 faults (4.5 MB) per
+640x480 windowed step, 229 with these settings. `retain_freed_memory` sets glibc's mmap threshold to its maximum (32 MB)
 and its trim threshold to 1 GB, so those blocks are reused from the heap
 (docs/training.md "The heap keeps what a step frees"). The process holds its peak heap until it
 exits; no values change.
