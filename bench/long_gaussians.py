@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -38,12 +37,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from recon.data import load_dataset  # noqa: E402
-from recon.dtg.gaussians import quat_to_rotmat  # noqa: E402
+from recon.dtg.gaussians import SH_C0, quat_to_rotmat  # noqa: E402
+from recon.eval.metrics import psnr, thermal_mae_k  # noqa: E402
 from recon.render import draw, inference_masks, load_run  # noqa: E402
 from recon.scene import Scene  # noqa: E402
 from recon.splat import rasterization  # noqa: E402
 
-SH_C0 = 0.28209479177387814
 VARIANTS = ["none", "E 0.3", "E 1", "across 3", "across 10", "camera 0.3", "camera 1", "weight 0.05", "weight 0.25"]
 
 
@@ -103,7 +102,7 @@ def changed(g: dict, variant: str, bounds: dict[str, torch.Tensor]) -> dict:
 
 def grade(model, scene: Scene, masks, variant: str, bounds: dict[str, torch.Tensor]) -> dict[str, float]:
     """Held-out RGB PSNR (mean over views, dB) and thermal MAE (mean over views, K)."""
-    psnr, mae = [], []
+    rgb, mae = [], []
     with torch.no_grad():
         for m in scene.modalities():
             for view in scene.test[m][::2]:
@@ -111,13 +110,12 @@ def grade(model, scene: Scene, masks, variant: str, bounds: dict[str, torch.Tens
                 image, _ = draw(model, m, g, view.camera)
                 target, valid = scene.target(view)
                 if m == "rgb":
-                    psnr.append(-10 * math.log10(max(float(((image.clamp(0, 1) - target) ** 2).mean()), 1e-12)))
+                    rgb.append(float(psnr(image.clamp(0, 1), target)))
                 else:
-                    err = (scene.kelvin(image[..., 0]) - scene.kelvin(target)).abs()
-                    mae.append(float(err[valid].mean() if valid is not None else err.mean()))
+                    mae.append(float(thermal_mae_k(scene.kelvin(image[..., 0]), scene.kelvin(target), valid)))
     out = {}
-    if psnr:
-        out["rgb_psnr"] = round(sum(psnr) / len(psnr), 2)
+    if rgb:
+        out["rgb_psnr"] = round(sum(rgb) / len(rgb), 2)
     if mae:
         out["thermal_mae_k"] = round(sum(mae) / len(mae), 3)
     return out

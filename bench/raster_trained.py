@@ -37,6 +37,7 @@ def measure(ply: Path, transforms: Path, scale: int, reps: int, threads: int) ->
     import numpy as np
     import torch
 
+    from recon.dtg.gaussians import SH_C0
     from recon.splat import _native
     from recon.splat.cli import frame_camera
     from recon.splat.ply import read_gaussians_ply
@@ -45,7 +46,7 @@ def measure(ply: Path, transforms: Path, scale: int, reps: int, threads: int) ->
     g = read_gaussians_ply(ply)
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
     opacities = torch.sigmoid(t(g.opacity_logits))
-    colors = (t(g.sh[:, 0]) * 0.28209479177387814 + 0.5).contiguous()
+    colors = (t(g.sh[:, 0]) * SH_C0 + 0.5).contiguous()
     frames = json.loads(transforms.read_text())["frames"]
     views = []
     with torch.no_grad():
