@@ -84,10 +84,12 @@ def _timed(fn, reps: int) -> float:
 
 
 def _params(w, torch, sh: bool):
+    from recon.dtg.gaussians import value_to_sh_dc
+
     feats = w.colors
     if sh:  # degree-3 SH whose DC term reproduces the colours
         feats = torch.zeros(w.colors.shape[0], 16, 3)
-        feats[:, 0] = (w.colors - 0.5) / 0.28209479177387814
+        feats[:, 0] = value_to_sh_dc(w.colors)
     return [t.clone().requires_grad_(True) for t in (w.means, w.quats, w.log_scales, w.opacities, feats)]
 
 
