@@ -6,6 +6,7 @@
     python bench/train_step.py --out /tmp/ts --sizes 160x120:10000 --methods dtg,dtg-nogeo \
         --variant 'dtg-nogeo=dtg:{"model.deform_geometry": []}'
     python bench/train_step.py --out /tmp/ts --from-run runs/s1 --progress 0.9
+    python bench/train_step.py --out /tmp/ts --from-run runs/s640 --crop 1          # whole frames
 
 For each (method or --variant, size W x H : N Gaussians) a simulated family scene (10 time steps) is trained
 with N initial points and no densification (N stays fixed), on whole frames or with @F on random
@@ -115,9 +116,11 @@ def measure(method: str, variant: tuple[str, dict], width: int, height: int, n: 
     return timed_steps(trainer, method, f"{width}x{height}", crop, threads, steps, warmup)
 
 
-def measure_run(run: Path, progress: float | None, steps: int, warmup: int, threads: int) -> dict:
+def measure_run(run: Path, progress: float | None, steps: int, warmup: int, threads: int,
+                crop: float | None = None) -> dict:
     """Time a trained run as it ended (RUN/checkpoints/latest.pt on the dataset RUN/scene.json names),
-    the schedule held at `progress` (None: where the run ended, at most 0.99)."""
+    the schedule held at `progress` (None: where the run ended, at most 0.99), on windows of `crop`
+    of each side (1: whole frames; None: as the run trained)."""
     data = Path(json.loads((run / "scene.json").read_text())["dataset"])
     if not (data / "transforms.json").exists():
         raise SystemExit(f"error: {run / 'scene.json'} names the dataset {data}, which is not there (moved?)")
@@ -125,6 +128,8 @@ def measure_run(run: Path, progress: float | None, steps: int, warmup: int, thre
     trainer = Trainer.resume(run / "checkpoints" / "latest.pt", scene, log=lambda _: None, threads=threads)
     p = min(trainer.progress(), 0.99) if progress is None else progress
     trainer.progress_fn = lambda _: p
+    if crop is not None:
+        trainer.cfg.crop = crop
     cam = scene.train["thermal"][0].camera
     row = timed_steps(trainer, f"{trainer.cfg.method} ({run.parent.name}/{run.name}, p {p:.2f})", f"{cam.width}x{cam.height}",
                       trainer.cfg.crop, threads, steps, warmup)
@@ -179,6 +184,8 @@ def main() -> int:
                     help="time this trained run (recon run's output folder) as it ended (repeatable)")
     ap.add_argument("--progress", type=float, default=None,
                     help="with --from-run: hold the schedule here (default: where the run ended, at most 0.99)")
+    ap.add_argument("--crop", type=float, default=None,
+                    help="with --from-run: train on windows of F of each side (1: whole frames; default: as the run did)")
     args = ap.parse_args()
     variants = dict(parse_variant(v) for v in args.variant)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -187,7 +194,7 @@ def main() -> int:
         if not (run / "checkpoints" / "latest.pt").exists():
             print(f"error: {run}: no checkpoints/latest.pt (a recon run output folder?)", file=sys.stderr)
             return 2
-        rows.append(measure_run(run, args.progress, args.steps, args.warmup, args.threads))
+        rows.append(measure_run(run, args.progress, args.steps, args.warmup, args.threads, args.crop))
         print(f"{rows[-1]['method']}: {rows[-1]['gaussians']} Gaussians, {rows[-1]['ms_per_it']:.1f} ms/it", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         for size in ([] if args.from_run else args.sizes.split(",")):
