@@ -113,12 +113,13 @@ class ModelConfig:
     # size on each side; the others get no residual. Exact unless a residual carries a Gaussian
     # from beyond that margin into the render. None: on every Gaussian.
     view_margin: float | None = None
-    # A Gaussian whose k-sigma ellipsoid holds the camera is not drawn from that camera (k here;
-    # None: drawn). EWA's projection linearises at the Gaussian's centre, so seen from inside a
-    # Gaussian its footprint has no meaning: a far-floor Gaussian 19 m long, whose centre lay 0.5 m
-    # in front of a held-out camera and 9 m to its side, covered that whole view at opacity 0.99
-    # (family-outside seed 106; docs/training.md "A camera inside a Gaussian").
-    cull_containing: float | None = None
+    # A Gaussian whose centre projects more than this x the view's width (height) beyond its edges
+    # is not drawn (None: drawn). The projection clamps such a centre's Jacobian to the view's
+    # edge but keeps its depth, so one 0.1-0.6 m in front of the camera and metres to its side
+    # spreads a footprint of thousands of pixels over the view: on family-outside seed 106 a
+    # far-floor Gaussian 19 m long filled a held-out view, on seed 102 dozens made a haze
+    # (docs/training.md "Gaussians far beside the view").
+    cull_off_view: float | None = None
     body_reach: float = 0.0          # a body's Gaussians stay within this x its farthest initial point
                                      # of its pivot (MotionBases.keep_within); 0: unbounded
     # A bias on the deformation's geometry outputs moves every Gaussian alike. Adam moves it by
