@@ -19,7 +19,10 @@ scales clamped, or some Gaussians dropped, as each variant says:
 - `E c`: largest scale held at c x the scene extent E (what `--max-scale c` holds while training);
 - `across c`: held at c x `across`;
 - `camera k`: held at k x the distance to the nearest training camera centre (an angular size);
-- `weight t`: Gaussians whose `weight` is under t pixels dropped.
+- `weight t`: Gaussians whose `weight` is under t pixels dropped;
+- `beside m`: each held-out view leaves out the Gaussians whose centre projects more than m view
+  widths (heights) beyond its edges (`ModelConfig.cull_off_view` = m). Every other variant,
+  `none` included, draws without that rule, whatever the run trained with.
 
 Writes, per run: Gaussian counts (longer than 1 m; never in a training view's frustum; the ratio
 of length to `across` of those longer than 1 m; how many are under each weight), and held-out RGB PSNR (dB) and thermal MAE (K) per variant.
@@ -43,7 +46,8 @@ from recon.render import draw, inference_masks, load_run  # noqa: E402
 from recon.scene import Scene  # noqa: E402
 from recon.splat import rasterization  # noqa: E402
 
-VARIANTS = ["none", "E 0.3", "E 1", "across 3", "across 10", "camera 0.3", "camera 1", "weight 0.05", "weight 0.25"]
+VARIANTS = ["none", "E 0.3", "E 1", "across 3", "across 10", "camera 0.3", "camera 1", "weight 0.05", "weight 0.25",
+            "beside 0.5", "beside 1", "beside 2"]
 
 
 def across_ray(g: dict, camera) -> tuple[torch.Tensor, torch.Tensor]:
@@ -89,7 +93,7 @@ def what_training_sees(model, scene: Scene, masks) -> dict[str, torch.Tensor]:
 
 def changed(g: dict, variant: str, bounds: dict[str, torch.Tensor]) -> dict:
     """Render inputs g with a variant applied (bounds: per-Gaussian tensors by kind)."""
-    if variant == "none":
+    if variant == "none" or variant.startswith("beside"):
         return g
     kind, value = variant.split()
     value = float(value)
@@ -103,16 +107,22 @@ def changed(g: dict, variant: str, bounds: dict[str, torch.Tensor]) -> dict:
 def grade(model, scene: Scene, masks, variant: str, bounds: dict[str, torch.Tensor]) -> dict[str, float]:
     """Held-out RGB PSNR (mean over views, dB) and thermal MAE (mean over views, K)."""
     rgb, mae = [], []
-    with torch.no_grad():
-        for m in scene.modalities():
-            for view in scene.test[m][::2]:
-                g = changed(model.render_inputs(m, view.time, 1.0, mask=masks[m]), variant, bounds)
-                image, _ = draw(model, m, g, view.camera)
-                target, valid = scene.target(view)
-                if m == "rgb":
-                    rgb.append(float(psnr(image.clamp(0, 1), target)))
-                else:
-                    mae.append(float(thermal_mae_k(scene.kelvin(image[..., 0]), scene.kelvin(target), valid)))
+    kind, _, value = variant.partition(" ")
+    own = model.cfg.cull_off_view          # every other variant draws without the rule
+    model.cfg.cull_off_view = float(value) if kind == "beside" else None
+    try:
+        with torch.no_grad():
+            for m in scene.modalities():
+                for view in scene.test[m][::2]:
+                    g = changed(model.render_inputs(m, view.time, 1.0, mask=masks[m]), variant, bounds)
+                    image, _ = draw(model, m, g, view.camera)
+                    target, valid = scene.target(view)
+                    if m == "rgb":
+                        rgb.append(float(psnr(image.clamp(0, 1), target)))
+                    else:
+                        mae.append(float(thermal_mae_k(scene.kelvin(image[..., 0]), scene.kelvin(target), valid)))
+    finally:
+        model.cfg.cull_off_view = own
     out = {}
     if rgb:
         out["rgb_psnr"] = round(sum(rgb) / len(rgb), 2)
