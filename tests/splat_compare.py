@@ -45,13 +45,16 @@ def weighted_loss(image, alpha, depth, weights) -> torch.Tensor:
     return (image.double() * wi).sum() + (alpha.double() * wa).sum() + 0.1 * (depth.double() * wd).sum()
 
 
-def gradients(g: Gaussians, cam: Camera, reference: bool, **kw) -> dict[str, torch.Tensor]:
-    """d weighted_loss / d every input (and viewmat, means2d), from ours or the reference."""
+def gradients(g: Gaussians, cam: Camera, reference: bool, depth: bool = True, **kw) -> dict[str, torch.Tensor]:
+    """d weighted_loss / d every input (and viewmat, means2d), from ours or the reference;
+    depth False: no loss on the depth image (its gradient reaches the backward as zeros)."""
     dtype = torch.float64 if reference else torch.float32
     params = g.to(dtype).requires_grad_()
     view = cam.viewmat.detach().clone().to(dtype).requires_grad_()
     kw = {k: (v.to(dtype) if isinstance(v, torch.Tensor) else v) for k, v in kw.items()}
     weights = loss_weights(cam, g.features.shape[-1])
+    if not depth:
+        weights = (weights[0], weights[1], torch.zeros_like(weights[2]))
     if reference:
         r = ref.render(*params.tensors(), view, *cam.args()[1:], **kw)
         r["means2d"].retain_grad()
@@ -73,7 +76,7 @@ def relative_error(a: torch.Tensor, b: torch.Tensor, floor: float = 1e-8) -> flo
     return (a - b).norm().item() / max(b.norm().item(), floor)
 
 
-def gradient_errors(g: Gaussians, cam: Camera, **kw) -> dict[str, float]:
-    ours = gradients(g, cam, reference=False, **kw)
-    theirs = gradients(g, cam, reference=True, **kw)
+def gradient_errors(g: Gaussians, cam: Camera, depth: bool = True, **kw) -> dict[str, float]:
+    ours = gradients(g, cam, reference=False, depth=depth, **kw)
+    theirs = gradients(g, cam, reference=True, depth=depth, **kw)
     return {k: relative_error(ours[k], theirs[k]) for k in ours}

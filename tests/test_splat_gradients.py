@@ -18,6 +18,14 @@ def test_all_gradients_match_reference(channels):
     assert max(errors.values()) <= TOL, errors
 
 
+@pytest.mark.parametrize("channels", [1, 3])
+def test_gradients_without_a_depth_loss_match_reference(channels):
+    """Training takes no loss on depth: the backward then skips the depth terms."""
+    errors = gradient_errors(random_gaussians(300, channels, seed=20 + channels), default_camera(),
+                             depth=False, background=torch.linspace(0.2, 0.8, channels))
+    assert max(errors.values()) <= TOL, errors
+
+
 def test_gradients_match_reference_in_dense_scene():
     g = random_gaussians(200, 3, seed=7, spread=0.5, scale_range=(0.1, 0.6))
     g.opacities = 0.6 + 0.4 * g.opacities
