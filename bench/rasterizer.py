@@ -299,7 +299,7 @@ def _bench_train_step(w, reps, threads):
 
 
 def _intrinsics(w) -> tuple:
-    """The native projection's camera tuple for the workload's whole view (fx .. near_plane, window)."""
+    """The native projection's camera tuple for the workload's whole view (fx .. near_plane, window, beside)."""
     from recon.splat.rasterization import intrinsics
 
     return intrinsics(w.fx, w.fy, w.cx, w.cy, w.width, w.height, 0.01)

@@ -71,35 +71,18 @@ def render(model: DTGModel, modality: str, t: float, camera: Camera, progress: f
     return image, out, g
 
 
-@torch.no_grad()
-def off_view(camera: Camera, means: torch.Tensor, margin: float) -> torch.Tensor:
-    """(N,) bool: the Gaussians whose centre (means (N, 3)) lies in front of the camera but
-    projects more than margin x the whole view's width (height) beyond its edges (a window's
-    whole view: the rule does not depend on the window)."""
-    cam = means @ camera.viewmat[:3, :3].T + camera.viewmat[:3, 3]
-    z = cam[:, 2].clamp_min(1e-9)
-    x0, y0, width, height = camera.window or (0, 0, camera.width, camera.height)
-    u = camera.fx * cam[:, 0] / z + camera.cx + x0
-    v = camera.fy * cam[:, 1] / z + camera.cy + y0
-    return (cam[:, 2] > 0) & ((u < -margin * width) | (u > (1 + margin) * width)
-                              | (v < -margin * height) | (v > (1 + margin) * height))
-
-
 def draw(model: DTGModel, modality: str, g: dict[str, torch.Tensor], camera: Camera, sh_degree: int | None = None,
          background: torch.Tensor | None = None, threads: int | None = None):
     """Rasterize a modality's render inputs g (DTGModel.render_inputs) in camera over the
     background (None: the learned one) -> (image (H, W, C), rasterizer output). Gaussians whose
-    centre is far beside the view are left out when the model says so (ModelConfig.cull_off_view)."""
+    centre is far beside the view are culled when the model says so (ModelConfig.cull_off_view:
+    the rasterizer's `cull_beside`)."""
     feats = g["features"]
     degree = int(round(feats.shape[1] ** 0.5)) - 1 if sh_degree is None else sh_degree
-    opacities = g["opacities"]
-    if model.cfg.cull_off_view is not None:
-        beside = off_view(camera, g["means"].detach(), model.cfg.cull_off_view)
-        opacities = torch.where(beside, 0.0, opacities)
-    out = rasterization(g["means"], g["quats"], g["log_scales"], opacities,
+    out = rasterization(g["means"], g["quats"], g["log_scales"], g["opacities"],
                         feats[:, : (degree + 1) ** 2], camera.viewmat, camera.fx, camera.fy,
                         camera.cx, camera.cy, camera.width, camera.height, sh_degree=degree, threads=threads,
-                        window=camera.window)
+                        window=camera.window, cull_beside=model.cfg.cull_off_view)
     bg = model.backgrounds[modality] if background is None else background
     return out.image + (1 - out.alpha)[..., None] * bg, out
 

@@ -88,10 +88,14 @@ def composite(means2d, conics, colors, opacities, depths, valid, width, height):
 
 
 def render(means, quats, log_scales, opacities, features, viewmat, fx, fy, cx, cy, width, height,
-           background=None, sh_degree=None, near_plane=0.01):
+           background=None, sh_degree=None, near_plane=0.01, cull_beside=None):
     """Dense reference of rasterization(); returns dict of image, alpha, depth, means2d."""
     means2d, conics, depths, _ = project(means, quats, log_scales, viewmat, fx, fy, cx, cy, width, height)
     valid = (depths >= near_plane) & (opacities >= 1.0 / 255.0)
+    if cull_beside is not None:
+        m = cull_beside
+        u, v = means2d.detach().unbind(-1)
+        valid &= (u >= -m * width) & (u <= (1 + m) * width) & (v >= -m * height) & (v <= (1 + m) * height)
     # culled Gaussians must not leak NaN/inf from a camera-z near 0 into the sums or gradients
     means2d = torch.where(valid[:, None], means2d, torch.zeros_like(means2d))
     conics = torch.where(valid[:, None], conics, torch.ones_like(conics))

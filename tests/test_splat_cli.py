@@ -1,7 +1,9 @@
 """`recon splat-render` and the OpenGL camera-to-world -> OpenCV viewmat conversion."""
 import json
+import math
 
 import numpy as np
+import pytest
 import torch
 from PIL import Image
 
@@ -50,11 +52,33 @@ def test_splat_render_matches_direct_rasterization(tmp_path):
     png = np.asarray(Image.open(out_png))
     with torch.no_grad():
         ref = rasterization(g.means, g.quats, g.log_scales, torch.sigmoid(logits), g.features, view,
-                            30.0, 44.0, 16.0, 12.5, 33, 25, background=torch.tensor([0.2, 0.4, 1.0]), sh_degree=1)
+                            30.0, 44.0, 16.0, 12.5, 33, 25, background=torch.tensor([0.2, 0.4, 1.0]), sh_degree=1,
+                            cull_beside=1.0)
     expected = (ref.image.clamp(0, 1) * 255).round().to(torch.uint8).numpy()
     assert png.shape == (25, 33, 3)
     assert np.abs(png.astype(int) - expected.astype(int)).max() <= 1
     assert ref.alpha.max() > 0.5 and (png != expected[0, 0]).any()  # the Gaussians are in view
+
+
+def test_splat_render_leaves_out_a_giant_beside_the_view_unless_told(tmp_path, capsys):
+    """One 20 m Gaussian 0.3 m in front of frame 0's camera and 5 m to its side covers the view
+    when drawn; by default (`--cull-beside 1`, as recon draws its models) it is left out."""
+    g = random_gaussians(1, 3, seed=4, sh_coeffs=1)
+    means = torch.tensor([[-5.0, 0.0, -0.3]])       # frame 0: identity camera-to-world, OpenGL axes
+    write_gaussians_ply(tmp_path / "m.ply", means, g.quats, torch.full((1, 3), math.log(20.0)),
+                        torch.full((1,), 5.0), g.features)
+    transforms = _dataset(tmp_path, torch.eye(4))
+    pixels = {}
+    for flag in ("1", "off"):
+        out = tmp_path / f"{flag}.png"
+        assert main(["splat-render", str(tmp_path / "m.ply"), "--transforms", str(transforms), "--out", str(out),
+                     "--cull-beside", flag]) == 0
+        pixels[flag] = np.asarray(Image.open(out))
+    assert pixels["1"].max() == 0 and pixels["off"].min() > 0
+    with pytest.raises(SystemExit) as exit_:
+        main(["splat-render", str(tmp_path / "m.ply"), "--transforms", str(transforms),
+              "--out", str(tmp_path / "x.png"), "--cull-beside", "-1"])
+    assert exit_.value.code == 2 and "--cull-beside must be a number >= 0 or 'off'" in capsys.readouterr().err
 
 
 def test_splat_render_errors_name_file_and_key(tmp_path, capsys):

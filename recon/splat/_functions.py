@@ -30,7 +30,8 @@ class Project(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, means, quats, log_scales, opacities, sh, viewmat, intr: tuple, degree: int, threads: int):
-        """intr: (fx, fy, cx, cy, width, height, near_plane, window (x0, y0, full_width, full_height))."""
+        """intr: (fx, fy, cx, cy, width, height, near_plane, window (x0, y0, full_width, full_height),
+        beside (< 0: off)): rasterization.intrinsics()."""
         sh_np = None if sh is None else _np(sh)
         means2d, conics, depths, radii, colors = _native.project_forward(
             _np(means), _np(quats), _np(log_scales), _np(opacities), _np(viewmat), *intr, sh_np, degree, threads

@@ -67,14 +67,27 @@ def parse_background(text: str) -> torch.Tensor:
     return torch.tensor(values, dtype=torch.float32)
 
 
-def render_ply(ply_path: Path, camera: PinholeCamera, background: torch.Tensor) -> np.ndarray:
+def parse_cull_beside(text: str) -> float | None:
+    if text == "off":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not 0.0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"--cull-beside must be a number >= 0 or 'off', got {text!r}")
+    return value
+
+
+def render_ply(ply_path: Path, camera: PinholeCamera, background: torch.Tensor,
+               cull_beside: float | None = 1.0) -> np.ndarray:
     """-> (H,W,3) uint8 render of a 3DGS PLY (opacity sigmoid, SH degree from the file)."""
     g = read_gaussians_ply(ply_path)
     with torch.no_grad():
         out = rasterization(
             torch.from_numpy(g.means), torch.from_numpy(g.quats), torch.from_numpy(g.log_scales),
             torch.sigmoid(torch.from_numpy(g.opacity_logits)), torch.from_numpy(np.ascontiguousarray(g.sh)),
-            *camera.args(), background=background, sh_degree=g.sh_degree,
+            *camera.args(), background=background, sh_degree=g.sh_degree, cull_beside=cull_beside,
         )
     return (out.image.clamp(0, 1) * 255).round().to(torch.uint8).numpy()
 
@@ -84,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
 
     camera = frame_camera(args.transforms, args.frame)
     start = time.perf_counter()
-    image = render_ply(args.model, camera, args.background)
+    image = render_ply(args.model, camera, args.background, args.cull_beside)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(image).save(args.out)
     ms = 1e3 * (time.perf_counter() - start)
@@ -107,6 +120,10 @@ def register(subparsers) -> None:
     p.add_argument("--out", type=Path, required=True, metavar="OUT.png", help="output image (PNG, 8-bit RGB)")
     p.add_argument("--background", type=parse_background, default=torch.zeros(3), metavar="R,G,B",
                    help="background colour, values in [0,1] (default: 0,0,0 = black)")
+    p.add_argument("--cull-beside", type=parse_cull_beside, default=1.0, metavar="M|off",
+                   help="leave out Gaussians whose centre projects more than M view widths (heights) beyond "
+                   "the view's edges, as `recon` draws its models (ModelConfig.cull_off_view); 'off' draws "
+                   "them as other 3DGS viewers do (default: %(default)s)")
     p.set_defaults(func=_guarded)
 
 

@@ -10,7 +10,9 @@ Conventions (identical in the dense reference of the tests):
   stops before the Gaussian that would take its transmittance below 1e-4.
 - footprint: opacity-aware, i.e. exactly where alpha can reach 1/255 (q <= 2 ln(255 o)), so the
   result never depends on tile binning; Gaussians with o < 1/255 or camera z < near_plane are
-  culled.
+  culled, and with `cull_beside` = m those whose centre projects more than m x the (full) view's
+  width or height beyond its edges: the clamped Jacobian keeps such a centre's small depth, so a
+  long Gaussian far to the side can cover the whole view (3DGS culls on depth only).
 - depth: expected camera z of the composited surface, sum(w_i z_i) / max(alpha, 1e-10); where
   alpha is 0 it is 0.
 """
@@ -70,14 +72,19 @@ def _check_camera(fx, fy, cx, cy, width, height, near_plane) -> None:
             raise ValueError(f"{name} must be a positive int, got {v!r}")
 
 
-def intrinsics(fx, fy, cx, cy, width, height, near_plane=NEAR_PLANE, window=None) -> tuple:
+def intrinsics(fx, fy, cx, cy, width, height, near_plane=NEAR_PLANE, window=None, cull_beside=None) -> tuple:
     """Checked camera values -> the projection's intr tuple (fx, fy, cx, cy, width, height,
-    near_plane, window); window (x0, y0, full_width, full_height), None: the whole view."""
+    near_plane, window, beside); window (x0, y0, full_width, full_height), None: the whole view;
+    cull_beside None: off (beside -1)."""
     _check_camera(fx, fy, cx, cy, width, height, near_plane)
     window = (0, 0, width, height) if window is None else tuple(int(v) for v in window)
     if len(window) != 4 or min(window[:2]) < 0 or window[0] + width > window[2] or window[1] + height > window[3]:
         raise ValueError(f"window {window} must be (x0, y0, full_width, full_height) holding the {width}x{height} image")
-    return (float(fx), float(fy), float(cx), float(cy), width, height, float(near_plane), window)
+    if cull_beside is not None and (isinstance(cull_beside, bool) or not isinstance(cull_beside, (int, float))
+                                    or not 0 <= cull_beside < float("inf")):
+        raise ValueError(f"cull_beside must be None or a finite number >= 0, got {cull_beside!r}")
+    beside = -1.0 if cull_beside is None else float(cull_beside)
+    return (float(fx), float(fy), float(cx), float(cy), width, height, float(near_plane), window, beside)
 
 
 def _check_features(features, sh_degree, n: int) -> None:
@@ -103,7 +110,7 @@ def project(means, quats, log_scales, opacities, features, viewmat, intr: tuple,
     """Checked inputs -> means2d (N,2), conics (N,3), depths (N,), radii (N,), colors (N,C).
 
     One native pass (Project): colors are features as is, or SH evaluated for the direction
-    camera -> Gaussian. intr: (fx, fy, cx, cy, width, height, near_plane, window).
+    camera -> Gaussian. intr: `intrinsics()`'s tuple.
     """
     sh = None if sh_degree is None else features.contiguous()
     means2d, conics, depths, radii, colors = Project.apply(
@@ -131,6 +138,7 @@ def rasterization(
     threads: int | None = None,
     max_tile_pairs: int = MAX_TILE_PAIRS,
     window: tuple[int, int, int, int] | None = None,
+    cull_beside: float | None = None,
 ) -> RenderOutput:
     """Render Gaussians to (H,W,C); differentiable in every tensor input (and viewmat).
 
@@ -142,6 +150,9 @@ def rasterization(
     window (x0, y0, full_width, full_height): the image is the window at (x0, y0) of a larger view
     (PinholeCamera.crop); it then renders exactly that part of the larger view's render (3DGS's
     clamp of the projection's Jacobian follows the larger view's edges). None: the whole view.
+    cull_beside m: Gaussians whose centre (in front of the camera) projects more than m x the
+    whole view's width (height) beyond its edges are culled, as the near plane culls (a window
+    culls as its whole view does); None: off.
     """
     _check("means", means, (-1, 3))
     n = means.shape[0]
@@ -149,7 +160,7 @@ def rasterization(
     _check("log_scales", log_scales, (n, 3))
     _check("opacities", opacities, (n,))
     _check("viewmat", viewmat, (4, 4), (torch.float32, torch.float64))
-    intr = intrinsics(fx, fy, cx, cy, width, height, near_plane, window)
+    intr = intrinsics(fx, fy, cx, cy, width, height, near_plane, window, cull_beside)
     threads = torch.get_num_threads() if threads is None else int(threads)
     if threads < 1:
         raise ValueError(f"threads must be >= 1, got {threads}")

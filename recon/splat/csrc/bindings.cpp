@@ -61,7 +61,8 @@ int64_t check_gaussians(const Arr<float>& means, const Arr<float>& quats,
 }
 
 Camera make_camera(const Arr<float>& viewmat, float fx, float fy, float cx, float cy, int width,
-                   int height, float near_plane, const std::array<int, 4>& window) {
+                   int height, float near_plane, const std::array<int, 4>& window,
+                   float beside) {
   check(viewmat, "viewmat", {4, 4});
   if (width < 1 || height < 1) throw py::value_error("native splat: width and height must be >= 1");
   const auto [x0, y0, fw, fh] = window;
@@ -80,6 +81,7 @@ Camera make_camera(const Arr<float>& viewmat, float fx, float fy, float cx, floa
   cam.win_y0 = y0;
   cam.full_width = fw;
   cam.full_height = fh;
+  cam.beside = beside;
   return cam;
 }
 
@@ -101,11 +103,11 @@ ShInput sh_input(const std::optional<Arr<float>>& sh, int64_t n, int degree) {
 py::tuple project_fwd(Arr<float> means, Arr<float> quats, Arr<float> log_scales,
                       Arr<float> opacities, Arr<float> viewmat, float fx, float fy, float cx,
                       float cy, int width, int height, float near_plane,
-                      std::array<int, 4> window, std::optional<Arr<float>> sh, int degree,
-                      int threads) {
+                      std::array<int, 4> window, float beside, std::optional<Arr<float>> sh,
+                      int degree, int threads) {
   const int64_t n = check_gaussians(means, quats, log_scales);
   check(opacities, "opacities", {n});
-  const Camera cam = make_camera(viewmat, fx, fy, cx, cy, width, height, near_plane, window);
+  const Camera cam = make_camera(viewmat, fx, fy, cx, cy, width, height, near_plane, window, beside);
   const ShInput shi = sh_input(sh, n, degree);
   auto means2d = empty<float>({n, 2});
   auto conics = empty<float>({n, 3});
@@ -124,7 +126,7 @@ py::tuple project_fwd(Arr<float> means, Arr<float> quats, Arr<float> log_scales,
 py::tuple project_bwd(Arr<float> means, Arr<float> quats, Arr<float> log_scales,
                       Arr<int32_t> radii, Arr<float> viewmat, float fx, float fy, float cx,
                       float cy, int width, int height, float near_plane,
-                      std::array<int, 4> window, Arr<float> v_means2d,
+                      std::array<int, 4> window, float beside, Arr<float> v_means2d,
                       Arr<float> v_conics, Arr<float> v_depths, std::optional<Arr<float>> sh,
                       std::optional<Arr<float>> colors, std::optional<Arr<float>> v_colors,
                       int degree, int threads) {
@@ -133,7 +135,7 @@ py::tuple project_bwd(Arr<float> means, Arr<float> quats, Arr<float> log_scales,
   check(v_means2d, "v_means2d", {n, 2});
   check(v_conics, "v_conics", {n, 3});
   check(v_depths, "v_depths", {n});
-  const Camera cam = make_camera(viewmat, fx, fy, cx, cy, width, height, near_plane, window);
+  const Camera cam = make_camera(viewmat, fx, fy, cx, cy, width, height, near_plane, window, beside);
   const ShInput shi = sh_input(sh, n, degree);
   if (sh) {
     if (!colors || !v_colors) throw py::value_error("native splat: sh needs colors and v_colors");

@@ -198,11 +198,17 @@ void project_forward(int64_t n, const float* means, const float* quats, const fl
       const f8 ex = sqrt8(rb * b.A) * 1.0001f + 1e-3f, ey = sqrt8(rb * b.C) * 1.0001f + 1e-3f;
       const f8 x0 = ceil8(mx - ex - 0.5f), x1 = floor8(mx + ex - 0.5f);
       const f8 y0 = ceil8(my - ey - 0.5f), y1 = floor8(my + ey - 0.5f);
-      const i8 vis = (b.t[2] >= splat8(cam.near_plane)) & (o >= splat8(kAlphaMin)) &
-                     (b.det > splat8(0.f)) & (b.det <= splat8(3.4e38f)) &
-                     (x1 >= splat8(0.f)) & (x0 <= x1) &
-                     (x0 <= splat8(cam.width - 1.f)) & (y1 >= splat8(0.f)) & (y0 <= y1) &
-                     (y0 <= splat8(cam.height - 1.f));
+      i8 vis = (b.t[2] >= splat8(cam.near_plane)) & (o >= splat8(kAlphaMin)) &
+               (b.det > splat8(0.f)) & (b.det <= splat8(3.4e38f)) &
+               (x1 >= splat8(0.f)) & (x0 <= x1) &
+               (x0 <= splat8(cam.width - 1.f)) & (y1 >= splat8(0.f)) & (y0 <= y1) &
+               (y0 <= splat8(cam.height - 1.f));
+      if (cam.beside >= 0.f) {  // the centre in the full view's pixels, as the window's clamp
+        const f8 px = mx + (float)cam.win_x0, py = my + (float)cam.win_y0;
+        const float W = (float)cam.full_width, H = (float)cam.full_height;
+        vis &= (px >= splat8(-cam.beside * W)) & (px <= splat8((1.f + cam.beside) * W)) &
+               (py >= splat8(-cam.beside * H)) & (py <= splat8((1.f + cam.beside) * H));
+      }
       const f8 zero = splat8(0.f);
       scatter(select8(vis, mx, zero), means2d, 2, i0, cnt, 0);
       scatter(select8(vis, my, zero), means2d, 2, i0, cnt, 1);

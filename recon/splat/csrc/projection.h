@@ -14,6 +14,10 @@ struct Camera {
   // view: 0, 0, width, height). The Jacobian's clamp follows the full view's edges, so a window
   // renders exactly that part of the full render.
   int win_x0 = 0, win_y0 = 0, full_width = 0, full_height = 0;
+  // Cull a Gaussian whose centre projects more than beside x the full view's width (height)
+  // beyond its edges; < 0: off. The clamp above keeps such a Gaussian's small depth with the
+  // edge's Jacobian, so a long one far to the side can cover the whole view.
+  float beside = -1.f;
 };
 
 // Optional SH colour: sh (N,K,C) with K >= (degree+1)^2, evaluated for the direction camera ->
