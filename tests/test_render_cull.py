@@ -6,7 +6,6 @@ import math
 import torch
 
 from recon import render as rendering
-from recon.scene import Camera
 from recon.splat import rasterization
 from recon.train.trainer import Trainer
 from tests.splat_compare import forward_errors, gradient_errors
