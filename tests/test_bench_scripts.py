@@ -56,9 +56,12 @@ def test_trained_model_bench_measures_two_checkouts(tmp_path):
                          timeout=300)
     assert run.returncode == 0, run.stdout + run.stderr
     result = json.loads(out.read_text())
-    assert len(result["rounds"]) == 4 and {r["size"] for r in result["rounds"]} == {"48x32", "96x64"}
+    builds = [r for r in result["rounds"] if "checkout" in r]
+    assert len(builds) == 4 and {r["size"] for r in builds} == {"48x32", "96x64"}
     for name in ("this x1", "against x2"):
         assert result["median"][name]["tile_pairs"] > 0 and result["median"][name]["total"] > 0
+    paired = [r for r in result["rounds"] if "paired" in r]
+    assert len(paired) == 2 and all(r["paired"] > 0 and r["max_image_diff"] == 0.0 for r in paired), paired
 
 
 def test_long_gaussians_bench_measures_what_training_views_see(tmp_path):
