@@ -2,7 +2,8 @@
 
 recon.splat._native is built with pybind11 alone: it takes numpy buffers, so building it never
 needs torch. Flags chosen by measurement on the target CPUs (see README, "splat"):
--O3, OpenMP for tile parallelism, and -march=native for AVX2/FMA 8-lane strips.
+-O3, OpenMP for tile parallelism, and -march=native for AVX2/FMA (8-lane strips) or AVX-512
+(16-lane strips: a whole tile row).
 """
 import os
 

@@ -1,6 +1,7 @@
-// Loop shape (measured fastest on these CPUs, see README): per tile, Gaussians outer in depth
-// order, pixels inner as 8-lane strips. Each Gaussian only visits the strips of its own
-// opacity-aware pixel box, so small Gaussians cost a few strips instead of the whole tile.
+// Loop shape (measured fastest on these CPUs, docs/rasterizer.md): per tile, Gaussians outer in
+// depth order, pixels inner as strips of kStripLanes (a whole tile row with AVX-512, else 8).
+// Each Gaussian only visits the strips of its own opacity-aware pixel box, so small Gaussians
+// cost a few strips instead of the whole tile.
 #include "rasterize.h"
 
 #include <omp.h>
@@ -17,9 +18,13 @@ namespace splat {
 namespace {
 
 constexpr int kTilePixels = kTile * kTile;
-constexpr int kStrips = kTile / kLanes;
+constexpr int kStrips = kTile / kStripLanes;
 
-const f8 kLaneOffset = {0.5f, 1.5f, 2.5f, 3.5f, 4.5f, 5.5f, 6.5f, 7.5f};
+const fs kLaneOffset = [] {  // pixel-centre offsets of a strip's lanes
+  fs v;
+  for (int l = 0; l < kStripLanes; ++l) v[l] = l + 0.5f;
+  return v;
+}();
 
 uint32_t sort_key(float z) {
   uint32_t u;
@@ -55,8 +60,8 @@ inline TileBox tile_box(const int32_t* box, int px0, int py0) {
   TileBox t;
   t.row0 = std::max(box[2], py0) - py0;
   t.row1 = std::min(box[3], py0 + kTile - 1) - py0;
-  t.strip0 = (std::max(box[0], px0) - px0) / kLanes;
-  t.strip1 = (std::min(box[1], px0 + kTile - 1) - px0) / kLanes;
+  t.strip0 = (std::max(box[0], px0) - px0) / kStripLanes;
+  t.strip1 = (std::min(box[1], px0 + kTile - 1) - px0) / kStripLanes;
   return t;
 }
 
@@ -132,12 +137,12 @@ inline GaussianParams load_gaussian(const RasterScene& s, int32_t g) {
           s.conics[3 * g + 2], s.opacities[g], s.depths[g]};
 }
 
-// power = -q/2 of the pixel strip starting at pixel column x (lanes x..x+7) in row y.
-inline f8 strip_power(const GaussianParams& p, int x, int y, f8& dx, float& dy) {
-  dx = kLaneOffset + splat8((float)x) - splat8(p.mx);
+// power = -q/2 of the pixel strip starting at pixel column x (lanes x..x+kStripLanes-1) in row y.
+inline fs strip_power(const GaussianParams& p, int x, int y, fs& dx, float& dy) {
+  dx = kLaneOffset + splats((float)x) - splats(p.mx);
   dy = (float)y + 0.5f - p.my;
-  return splat8(-0.5f) * (splat8(p.a) * dx * dx + splat8(p.c * dy * dy)) -
-         splat8(p.b * dy) * dx;
+  return splats(-0.5f) * (splats(p.a) * dx * dx + splats(p.c * dy * dy)) -
+         splats(p.b * dy) * dx;
 }
 
 }  // namespace
@@ -256,9 +261,9 @@ void rasterize_forward(const RasterScene& s, const BinView& bins, float* image, 
   const std::vector<float> cut = power_cutoffs(s, std::max(1, threads));
 #pragma omp parallel num_threads(std::max(1, threads))
   {
-    alignas(32) float T[kTilePixels], D[kTilePixels];
-    alignas(32) int32_t done[kTilePixels], lastk[kTilePixels];
-    std::vector<f8> acc_buf((size_t)C * kTilePixels / kLanes);
+    alignas(64) float T[kTilePixels], D[kTilePixels];
+    alignas(64) int32_t done[kTilePixels], lastk[kTilePixels];
+    std::vector<fs> acc_buf((size_t)C * kTilePixels / kStripLanes);
     float* acc = reinterpret_cast<float*>(acc_buf.data());  // (C, 256)
 #pragma omp for schedule(dynamic, 1)
     for (int64_t tile = 0; tile < n_tiles; ++tile) {
@@ -285,44 +290,44 @@ void rasterize_forward(const RasterScene& s, const BinView& bins, float* image, 
         const GaussianParams gp = load_gaussian(s, g);
         const TileBox tb = tile_box(bins.boxes + 4 * (int64_t)g, px0, py0);
         const float* col = s.colors + (int64_t)g * C;
-        const i8 kv = spliti8((int32_t)(k - k0));
-        const f8 cutv = splat8(cut[g]);
+        const is kv = splatis((int32_t)(k - k0));
+        const fs cutv = splats(cut[g]);
         for (int r = tb.row0; r <= tb.row1; ++r) {
           if (row_live[r] == 0) continue;
           for (int st = tb.strip0; st <= tb.strip1; ++st) {
-            const int p = r * kTile + st * kLanes;
-            f8 dx;
+            const int p = r * kTile + st * kStripLanes;
+            fs dx;
             float dy;
-            const f8 power = strip_power(gp, px0 + st * kLanes, py0 + r, dx, dy);
-            if (!any8(power >= cutv)) continue;
-            f8 a = splat8(gp.o) * exp8(power);
-            a = a > splat8(kAlphaMax) ? splat8(kAlphaMax) : a;
-            i8 dn;
-            std::memcpy(&dn, done + p, 32);
-            i8 valid = (a >= splat8(kAlphaMin)) & ~dn;
-            if (!any8(valid)) continue;
-            f8 t;
-            std::memcpy(&t, T + p, 32);
-            const f8 nt = t * (splat8(1.f) - a);
-            const i8 stop = valid & (nt < splat8(kTransMin));
+            const fs power = strip_power(gp, px0 + st * kStripLanes, py0 + r, dx, dy);
+            if (!any(power >= cutv)) continue;
+            fs a = splats(gp.o) * exp_nonpositive(power);
+            a = a > splats(kAlphaMax) ? splats(kAlphaMax) : a;
+            is dn;
+            std::memcpy(&dn, done + p, sizeof(fs));
+            is valid = (a >= splats(kAlphaMin)) & ~dn;
+            if (!any(valid)) continue;
+            fs t;
+            std::memcpy(&t, T + p, sizeof(fs));
+            const fs nt = t * (splats(1.f) - a);
+            const is stop = valid & (nt < splats(kTransMin));
             valid &= ~stop;
-            const f8 w = select8(valid, a * t, splat8(0.f));
+            const fs w = select(valid, a * t, splats(0.f));
             for (int c = 0; c < C; ++c) {
-              f8* ac = reinterpret_cast<f8*>(acc + (size_t)c * kTilePixels + p);
-              *ac += w * splat8(col[c]);
+              fs* ac = reinterpret_cast<fs*>(acc + (size_t)c * kTilePixels + p);
+              *ac += w * splats(col[c]);
             }
-            f8* dp = reinterpret_cast<f8*>(D + p);
-            *dp += w * splat8(gp.z);
-            const f8 t2 = select8(valid, nt, t);
-            std::memcpy(T + p, &t2, 32);
-            i8 lk;
-            std::memcpy(&lk, lastk + p, 32);
+            fs* dp = reinterpret_cast<fs*>(D + p);
+            *dp += w * splats(gp.z);
+            const fs t2 = select(valid, nt, t);
+            std::memcpy(T + p, &t2, sizeof(fs));
+            is lk;
+            std::memcpy(&lk, lastk + p, sizeof(fs));
             lk = valid ? kv : lk;
-            std::memcpy(lastk + p, &lk, 32);
-            if (any8(stop)) {
+            std::memcpy(lastk + p, &lk, sizeof(fs));
+            if (any(stop)) {
               dn |= stop;
-              std::memcpy(done + p, &dn, 32);
-              const int stopped = count8(stop);
+              std::memcpy(done + p, &dn, sizeof(fs));
+              const int stopped = count(stop);
               row_live[r] -= stopped;
               live -= stopped;
             }
@@ -385,12 +390,12 @@ void rasterize_backward(const RasterScene& s, const BinView& bins, const float* 
   };
 #pragma omp parallel num_threads(nt)
   {
-    alignas(32) float T[kTilePixels], SD[kTilePixels], gD[kTilePixels], gAT[kTilePixels];
-    alignas(32) int32_t lastk[kTilePixels];
-    std::vector<f8> buf((size_t)2 * C * kTilePixels / kLanes + C);
+    alignas(64) float T[kTilePixels], SD[kTilePixels], gD[kTilePixels], gAT[kTilePixels];
+    alignas(64) int32_t lastk[kTilePixels];
+    std::vector<fs> buf((size_t)2 * C * kTilePixels / kStripLanes + C);
     float* S = reinterpret_cast<float*>(buf.data());  // (C,256) colour composited behind
     float* gC = S + (size_t)C * kTilePixels;          // (C,256) dL/dimage
-    f8* gcol = buf.data() + (size_t)2 * C * kTilePixels / kLanes;  // (C) lane accumulators
+    fs* gcol = buf.data() + (size_t)2 * C * kTilePixels / kStripLanes;  // (C) lane accumulators
 #pragma omp for schedule(dynamic, 1)
     for (int64_t tile = 0; tile < n_tiles; ++tile) {
       const int tx = (int)(tile % bins.tiles_x), ty = (int)(tile / bins.tiles_x);
@@ -419,74 +424,74 @@ void rasterize_backward(const RasterScene& s, const BinView& bins, const float* 
         const GaussianParams gp = load_gaussian(s, g);
         const TileBox tb = tile_box(bins.boxes + 4 * (int64_t)g, px0, py0);
         const float* col = s.colors + (int64_t)g * C;
-        const i8 kv = spliti8((int32_t)(k - k0));
-        const f8 cutv = splat8(cut[g]);
-        f8 gmx = splat8(0.f), gmy = gmx, ga = gmx, gb = gmx, gc = gmx, go = gmx, gz = gmx;
-        for (int c = 0; c < C; ++c) gcol[c] = splat8(0.f);
+        const is kv = splatis((int32_t)(k - k0));
+        const fs cutv = splats(cut[g]);
+        fs gmx = splats(0.f), gmy = gmx, ga = gmx, gb = gmx, gc = gmx, go = gmx, gz = gmx;
+        for (int c = 0; c < C; ++c) gcol[c] = splats(0.f);
         bool touched = false;
         for (int r = tb.row0; r <= tb.row1; ++r) {
           for (int st = tb.strip0; st <= tb.strip1; ++st) {
-            const int p = r * kTile + st * kLanes;
-            i8 lk;
-            std::memcpy(&lk, lastk + p, 32);
-            const i8 in_range = kv <= lk;
-            if (!any8(in_range)) continue;
-            f8 dx;
+            const int p = r * kTile + st * kStripLanes;
+            is lk;
+            std::memcpy(&lk, lastk + p, sizeof(fs));
+            const is in_range = kv <= lk;
+            if (!any(in_range)) continue;
+            fs dx;
             float dy;
-            const f8 power = strip_power(gp, px0 + st * kLanes, py0 + r, dx, dy);
-            if (!any8(in_range & (power >= cutv))) continue;
-            const f8 G = exp8(power);
-            const f8 ao = splat8(gp.o) * G;
-            const f8 a = ao > splat8(kAlphaMax) ? splat8(kAlphaMax) : ao;
-            const i8 valid = in_range & (a >= splat8(kAlphaMin));
-            if (!any8(valid)) continue;
+            const fs power = strip_power(gp, px0 + st * kStripLanes, py0 + r, dx, dy);
+            if (!any(in_range & (power >= cutv))) continue;
+            const fs G = exp_nonpositive(power);
+            const fs ao = splats(gp.o) * G;
+            const fs a = ao > splats(kAlphaMax) ? splats(kAlphaMax) : ao;
+            const is valid = in_range & (a >= splats(kAlphaMin));
+            if (!any(valid)) continue;
             touched = true;
-            f8 t;
-            std::memcpy(&t, T + p, 32);
-            const f8 inv = splat8(1.f) / (splat8(1.f) - a);
-            const f8 tb4 = t * inv;  // transmittance in front of this Gaussian
-            const f8 w = a * tb4;
-            f8 v_a = *reinterpret_cast<const f8*>(gAT + p) * inv;
+            fs t;
+            std::memcpy(&t, T + p, sizeof(fs));
+            const fs inv = splats(1.f) / (splats(1.f) - a);
+            const fs tb4 = t * inv;  // transmittance in front of this Gaussian
+            const fs w = a * tb4;
+            fs v_a = *reinterpret_cast<const fs*>(gAT + p) * inv;
             if (depth_on) {
-              f8* sdp = reinterpret_cast<f8*>(SD + p);
-              const f8 gd = *reinterpret_cast<const f8*>(gD + p);
-              v_a += gd * (splat8(gp.z) * tb4 - *sdp * inv);
-              gz += select8(valid, w * gd, splat8(0.f));
-              *sdp = select8(valid, *sdp + splat8(gp.z) * w, *sdp);
+              fs* sdp = reinterpret_cast<fs*>(SD + p);
+              const fs gd = *reinterpret_cast<const fs*>(gD + p);
+              v_a += gd * (splats(gp.z) * tb4 - *sdp * inv);
+              gz += select(valid, w * gd, splats(0.f));
+              *sdp = select(valid, *sdp + splats(gp.z) * w, *sdp);
             }
             for (int c = 0; c < C; ++c) {
-              f8* sp = reinterpret_cast<f8*>(S + (size_t)c * kTilePixels + p);
-              const f8 gcv = *reinterpret_cast<const f8*>(gC + (size_t)c * kTilePixels + p);
-              v_a += gcv * (splat8(col[c]) * tb4 - *sp * inv);
-              gcol[c] += select8(valid, w * gcv, splat8(0.f));
-              *sp = select8(valid, *sp + splat8(col[c]) * w, *sp);
+              fs* sp = reinterpret_cast<fs*>(S + (size_t)c * kTilePixels + p);
+              const fs gcv = *reinterpret_cast<const fs*>(gC + (size_t)c * kTilePixels + p);
+              v_a += gcv * (splats(col[c]) * tb4 - *sp * inv);
+              gcol[c] += select(valid, w * gcv, splats(0.f));
+              *sp = select(valid, *sp + splats(col[c]) * w, *sp);
             }
-            const f8 t2 = select8(valid, tb4, t);
-            std::memcpy(T + p, &t2, 32);
+            const fs t2 = select(valid, tb4, t);
+            std::memcpy(T + p, &t2, sizeof(fs));
             // alpha = min(0.99, o G): no gradient through an active clamp
-            const f8 v_ao = select8(valid & (ao <= splat8(kAlphaMax)), v_a, splat8(0.f));
+            const fs v_ao = select(valid & (ao <= splats(kAlphaMax)), v_a, splats(0.f));
             go += v_ao * G;
-            const f8 v_pow = v_ao * splat8(gp.o) * G;
-            const f8 dyv = splat8(dy);
-            ga += v_pow * splat8(-0.5f) * dx * dx;
+            const fs v_pow = v_ao * splats(gp.o) * G;
+            const fs dyv = splats(dy);
+            ga += v_pow * splats(-0.5f) * dx * dx;
             gb -= v_pow * dx * dyv;
-            gc += v_pow * splat8(-0.5f * dy * dy);
-            gmx += v_pow * (splat8(gp.a) * dx + splat8(gp.b) * dyv);
-            gmy += v_pow * (splat8(gp.b) * dx + splat8(gp.c) * dyv);
+            gc += v_pow * splats(-0.5f * dy * dy);
+            gmx += v_pow * (splats(gp.a) * dx + splats(gp.b) * dyv);
+            gmy += v_pow * (splats(gp.b) * dx + splats(gp.c) * dyv);
           }
         }
         if (!touched) continue;
         const int64_t r = slot(g, tx, ty);
         wrote[r] = 1;
         float* gr = rec + (size_t)r * stride;
-        gr[0] = hsum8(gmx);
-        gr[1] = hsum8(gmy);
-        gr[2] = hsum8(ga);
-        gr[3] = hsum8(gb);
-        gr[4] = hsum8(gc);
-        gr[5] = hsum8(go);
-        gr[6] = hsum8(gz);
-        for (int c = 0; c < C; ++c) gr[7 + c] = hsum8(gcol[c]);
+        gr[0] = hsums(gmx);
+        gr[1] = hsums(gmy);
+        gr[2] = hsums(ga);
+        gr[3] = hsums(gb);
+        gr[4] = hsums(gc);
+        gr[5] = hsums(go);
+        gr[6] = hsums(gz);
+        for (int c = 0; c < C; ++c) gr[7 + c] = hsums(gcol[c]);
       }
     }
     // the implicit barrier of the loop above has every record written
