@@ -22,4 +22,13 @@ native = Pybind11Extension(
     depends=sorted(os.path.join(CSRC, f) for f in os.listdir(CSRC)),
 )
 
-setup(ext_modules=[native])
+# SSIM's blur (recon/eval/metrics.py): the training loss's other image-sized kernel.
+blur = Pybind11Extension(
+    "recon.eval._native",
+    ["recon/eval/csrc/ssim.cpp"],
+    cxx_std=17,
+    extra_compile_args=["-O3", "-fopenmp", "-march=native", "-fno-math-errno"],
+    extra_link_args=["-fopenmp"],
+)
+
+setup(ext_modules=[native, blur])

@@ -81,6 +81,41 @@ def test_separable_ssim_equals_the_dense_3dgs_formula():
     assert float(ssim(a, b)) == pytest.approx(float(ref.mean()), abs=1e-10)
 
 
+def test_native_blur_equals_the_float64_convolution():
+    """The native separable blur (CPU float32, no autograd) against torch's conv2d in float64: the
+    same zero padding at every edge, images smaller than the window, batches, valid crops."""
+    from recon.eval.metrics import _blur
+
+    torch.manual_seed(3)
+    for shape in [(1, 37, 41, 15), (2, 9, 7, 3), (1, 4, 3, 1), (1, 120, 160, 9)]:
+        x = torch.rand(*shape)
+        for valid in (False, True) if min(shape[1:3]) > 10 else (False,):
+            native = _blur(x, valid)
+            ref = _blur(x.double(), valid)  # float64 takes the conv2d path
+            assert native.dtype == torch.float32 and native.shape == ref.shape, (shape, valid)
+            assert float((native.double() - ref).abs().max()) < 1e-6, (shape, valid)
+    x = torch.rand(1, 12, 13, 2, requires_grad=True)  # autograd needed: conv2d, gradients flow
+    _blur(x).sum().backward()
+    assert x.grad is not None and float(x.grad.abs().sum()) > 0
+
+
+def test_native_ssim_loss_equals_the_float64_torch_path():
+    """The fused native SSIM (CPU float32) against the same arithmetic in torch ops in float64:
+    the value, and the gradient of a render against a fixed target (training) or of both."""
+    torch.manual_seed(5)
+    for shape in [(1, 48, 64, 3), (2, 13, 9, 1), (1, 5, 4, 3)]:
+        a, b = torch.rand(*shape), torch.rand(*shape)
+        a32, a64 = a.clone().requires_grad_(), a.double().requires_grad_()
+        v32, v64 = ssim(a32, b), ssim(a64, b.double())
+        assert abs(float(v32.detach()) - float(v64.detach())) < 1e-6, shape
+        (g32,), (g64,) = torch.autograd.grad(v32, (a32,)), torch.autograd.grad(v64, (a64,))
+        assert float((g32.double() - g64).norm() / g64.norm()) < 1e-5, shape
+        b32, b64 = b.clone().requires_grad_(), b.double().requires_grad_()
+        gb32 = torch.autograd.grad(ssim(a, b32), (b32,))[0]
+        gb64 = torch.autograd.grad(ssim(a.double(), b64), (b64,))[0]
+        assert float((gb32.double() - gb64).norm() / gb64.norm()) < 1e-5, shape
+
+
 def test_ssim_is_differentiable_and_a_usable_loss():
     torch.manual_seed(0)
     a = torch.rand(12, 14, 1, dtype=torch.float64, requires_grad=True)

@@ -10,7 +10,7 @@ Gaussian window, sigma 1.5, C1 = 0.01^2, C2 = 0.03^2, zero-padded convolution, m
 whole map and channels. `convention="skimage"` instead averages only where the window fits
 inside the image, which equals skimage's structural_similarity(gaussian_weights=True,
 sigma=1.5, use_sample_covariance=False) and pytorch_msssim. The window is applied as two
-separable 1-D convolutions (11 + 11 taps instead of 121).
+separable 1-D filters (11 + 11 taps instead of 121), natively where no autograd passes through.
 """
 from __future__ import annotations
 
@@ -19,6 +19,8 @@ from functools import lru_cache
 import numpy as np
 import torch
 import torch.nn.functional as F
+
+from recon.eval import _native
 
 WINDOW, SIGMA = 11, 1.5
 C1, C2 = 0.01 ** 2, 0.03 ** 2
@@ -77,19 +79,34 @@ def _gauss_1d(dtype: torch.dtype, device: str) -> torch.Tensor:
     return (g / g.sum()).to(dtype=dtype, device=device)
 
 
-def _blur(x: torch.Tensor, padding: int) -> torch.Tensor:
-    """Separable Gaussian filter of (B, C, H, W), per channel, zero padding."""
-    c = x.shape[1]
+def _native_ok(*xs: torch.Tensor) -> bool:
+    """CPU float32: what the native kernels take (anything else runs the torch code)."""
+    return all(x.device.type == "cpu" and x.dtype == torch.float32 for x in xs)
+
+
+def _blur(x: torch.Tensor, valid: bool = False) -> torch.Tensor:
+    """Separable Gaussian filter of (B, H, W, K), per channel, zero padding; valid: only where the
+    window fits (H - 10, W - 10). CPU float32 outside autograd (evaluation) runs the native kernel
+    (`recon/eval/csrc/ssim.cpp`: ~3 against ~15 ms for 15 channels at 640x480); anything else
+    torch's depthwise conv2d, with autograd."""
+    r = WINDOW // 2
+    if _native_ok(x) and not (torch.is_grad_enabled() and x.requires_grad):
+        taps = _gauss_1d(torch.float32, "cpu").numpy()
+        out = torch.from_numpy(_native.blur(x.detach().contiguous().numpy(), taps, torch.get_num_threads()))
+        return out[:, r:-r, r:-r] if valid else out
+    k, pad = x.shape[-1], 0 if valid else r
     g = _gauss_1d(x.dtype, str(x.device))
-    x = F.conv2d(x, g.view(1, 1, WINDOW, 1).expand(c, 1, WINDOW, 1), padding=(padding, 0), groups=c)
-    return F.conv2d(x, g.view(1, 1, 1, WINDOW).expand(c, 1, 1, WINDOW), padding=(0, padding), groups=c)
+    y = x.permute(0, 3, 1, 2)  # channels-last memory: the depthwise conv is 3x faster so than planar
+    y = F.conv2d(y, g.view(1, 1, WINDOW, 1).expand(k, 1, WINDOW, 1), padding=(pad, 0), groups=k)
+    y = F.conv2d(y, g.view(1, 1, 1, WINDOW).expand(k, 1, 1, WINDOW), padding=(0, pad), groups=k)
+    return y.permute(0, 2, 3, 1)
 
 
-def _ssim_terms(a: torch.Tensor, b: torch.Tensor, padding: int) -> tuple[torch.Tensor, ...]:
-    """a, b: (B, C, H, W) -> mu_a, mu_b and the SSIM map's factors a1, a2 (numerator), b1, b2
+def _ssim_terms(a: torch.Tensor, b: torch.Tensor, valid: bool = False) -> tuple[torch.Tensor, ...]:
+    """a, b: (B, H, W, C) -> mu_a, mu_b and the SSIM map's factors a1, a2 (numerator), b1, b2
     (denominator): SSIM = a1 a2 / (b1 b2)."""
-    c = a.shape[1]
-    mu_a, mu_b, s_aa, s_bb, s_ab = _blur(torch.cat([a, b, a * a, b * b, a * b], 1), padding).split(c, 1)
+    c = a.shape[-1]
+    mu_a, mu_b, s_aa, s_bb, s_ab = _blur(torch.cat([a, b, a * a, b * b, a * b], -1), valid).split(c, -1)
     mu_ab, mu_aa, mu_bb = mu_a * mu_b, mu_a * mu_a, mu_b * mu_b
     a1, a2 = 2 * mu_ab + C1, 2 * (s_ab - mu_ab) + C2
     b1, b2 = mu_aa + mu_bb + C1, (s_aa - mu_aa) + (s_bb - mu_bb) + C2
@@ -101,40 +118,53 @@ def ssim_map(a, b, convention: str = "3dgs") -> torch.Tensor:
     if convention not in ("3dgs", "skimage"):
         raise ValueError(f"convention must be '3dgs' or 'skimage', got {convention!r}")
     a, b = _pair(a, b)
-    _, _, a1, a2, b1, b2 = _ssim_terms(a.permute(0, 3, 1, 2), b.permute(0, 3, 1, 2),
-                                       WINDOW // 2 if convention == "3dgs" else 0)
-    return ((a1 * a2) / (b1 * b2)).permute(0, 2, 3, 1)
+    _, _, a1, a2, b1, b2 = _ssim_terms(a, b, valid=convention == "skimage")
+    return (a1 * a2) / (b1 * b2)
 
 
 class _MeanSSIM(torch.autograd.Function):
-    """Mean SSIM ('3dgs' convention) of a, b: (B, C, H, W), with its analytic backward.
+    """Mean SSIM ('3dgs' convention) of a, b: (B, H, W, C), with its analytic backward.
 
     The zero-padded Gaussian blur G is self-adjoint (a symmetric kernel), so with S the SSIM map,
     dS/da = G(dS/dmu_a) + 2a G(dS/ds_aa) + b G(dS/ds_ab) (the form of fused-ssim, Mallick et al.):
-    one blur of the 5C statistics forward and one of 3C channels back. Autograd through ssim_map
-    recorded ~35 elementwise ops on strided tensors and two depthwise-convolution backwards.
+    one blur of the 5C statistics forward and one of 3C channels back. On CPU float32 both passes
+    are native and fused (`recon/eval/csrc/ssim.cpp`: no image-sized temporaries but the partials);
+    elsewhere the same arithmetic in torch ops. Autograd through ssim_map recorded ~35 elementwise
+    ops on strided tensors and two depthwise-convolution backwards.
     """
 
     @staticmethod
     def forward(ctx, a, b):
-        mu_a, mu_b, a1, a2, b1, b2 = _ssim_terms(a, b, WINDOW // 2)
+        ctx.native = _native_ok(a, b)
+        if ctx.native:
+            a, b = a.detach().contiguous(), b.detach().contiguous()
+            total, partials = _native.ssim_forward(a.numpy(), b.numpy(), _gauss_1d(torch.float32, "cpu").numpy(),
+                                                   torch.get_num_threads())
+            ctx.save_for_backward(a, b, torch.from_numpy(partials))
+            return a.new_tensor(total / a.numel())
+        mu_a, mu_b, a1, a2, b1, b2 = _ssim_terms(a, b)
         smap = (a1 * a2) / (b1 * b2)
         ctx.save_for_backward(a, b, mu_a, mu_b, a1, a2, b1, b2, smap)
         return smap.mean()
 
     @staticmethod
     def backward(ctx, grad):
+        need_a, need_b = ctx.needs_input_grad[:2]
+        if ctx.native:
+            a, b, partials = ctx.saved_tensors
+            ga, gb = _native.ssim_backward(a.numpy(), b.numpy(), partials.numpy(), _gauss_1d(torch.float32, "cpu").numpy(),
+                                           float(grad) / a.numel(), need_a, need_b, torch.get_num_threads())
+            return (None if ga is None else torch.from_numpy(ga)), (None if gb is None else torch.from_numpy(gb))
         a, b, mu_a, mu_b, a1, a2, b1, b2, smap = ctx.saved_tensors
         g = grad / smap.numel()
         den = b1 * b2
         k = (a2 - a1) / den  # dS/dmu_a = 2 mu_b k - 2 mu_a t (t below), symmetric in b
         t = smap * (1 / b1 - 1 / b2)
-        need_a, need_b = ctx.needs_input_grad
         parts = [g * 2 * (mu_b * k - mu_a * t)] if need_a else []
         parts += [g * 2 * (mu_a * k - mu_b * t)] if need_b else []
         parts += [-g * smap / b2, g * 2 * a1 / den]  # dS/ds_aa (= dS/ds_bb), dS/ds_ab
-        c = a.shape[1]
-        blurred = _blur(torch.cat(parts, 1), WINDOW // 2).split(c, 1)
+        c = a.shape[-1]
+        blurred = _blur(torch.cat(parts, -1)).split(c, -1)
         g_sq, g_ab = blurred[-2], blurred[-1]
         grad_a = blurred[0] + 2 * a * g_sq + b * g_ab if need_a else None
         grad_b = blurred[-3] + 2 * b * g_sq + a * g_ab if need_b else None
@@ -144,10 +174,7 @@ class _MeanSSIM(torch.autograd.Function):
 def ssim(a, b, mask=None, convention: str = "3dgs") -> torch.Tensor:
     """Mean SSIM (scalar tensor, differentiable); with a mask, the mean over masked pixels."""
     if mask is None and convention == "3dgs":  # the training loss: analytic backward
-        a, b = _pair(a, b)
-        # (B, C, H, W) views of (B, H, W, C) memory: the depthwise blur is 3x faster channels-last
-        # than planar (2.8 against 9 ms for 15 channels at 640x480), and planar copies cost more
-        return _MeanSSIM.apply(a.permute(0, 3, 1, 2), b.permute(0, 3, 1, 2))
+        return _MeanSSIM.apply(*_pair(a, b))
     smap = ssim_map(a, b, convention)
     m = _mask_bhw(mask, _bhwc(_as_tensor(a)).shape, smap.device)
     if m is None:
