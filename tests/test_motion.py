@@ -217,11 +217,11 @@ def test_climb_prices_vertical_speed_only():
     with torch.no_grad():
         level = torch.tensor([0.0, 0.8, -0.6])                  # orthogonal to up
         bases.translation[:] = torch.linspace(0, 1, 5)[None, :, None] * level
-    assert float(bases.climb(up, 2.0)) < 1e-12
+    assert float(bases.climb(up, 2.0).detach()) < 1e-12
     with torch.no_grad():
         bases.translation[1, 3] += 0.2 * up
     climb = bases.climb(up, 2.0)
-    assert float(climb) == pytest.approx(2 * (0.1 ** 2) / 4, rel=1e-5)   # up then down 0.1 extents, 4 steps
+    assert float(climb.detach()) == pytest.approx(2 * (0.1 ** 2) / 4, rel=1e-5)   # up then down 0.1 extents, 4 steps
     climb.backward()
     grad = bases.translation.grad[1, 3]
     assert float(grad.norm()) > 0 and float((grad - (grad @ up) * up).norm()) < 1e-6
