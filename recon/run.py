@@ -58,7 +58,8 @@ def test_render(trainer: Trainer, modality: str, view, scene: Scene | None = Non
 def evaluate_model(trainer: Trainer, every: int = 1, scene: Scene | None = None) -> dict:
     """Test metrics straight from the model (every `every`-th test view), with the same encodings
     and metric code as `recon eval` on written renders, without the disk:
-    {modality: {metric: mean over frames}, "regions": {modality: {region: pooled metrics}}}.
+    {modality: {metric: mean over frames}, "regions": {modality: {region: pooled metrics}},
+    "objects": {modality: {object name: pooled metrics}}}.
     scene: the test views to grade (default the training scene's; e.g. the same capture at a
     higher resolution than trained at)."""
     scene = scene or trainer.scene
@@ -71,6 +72,7 @@ def evaluate_model(trainer: Trainer, every: int = 1, scene: Scene | None = None)
         if rows:
             out[m] = {k: float(np.mean([r[k] for r in rows])) for k in rows[0] if k != "regions"}
     out["regions"] = pool.result()
+    out["objects"] = pool.objects()
     return out
 
 

@@ -6,11 +6,14 @@ import math
 import numpy as np
 import pytest
 
+from recon.batch.summary import flatten
 from recon.data import load_dataset
 from recon.data.errors import DatasetError
 from recon.data.simulate import SimulateConfig, simulate_dataset
 from recon.eval import evaluate_run
-from recon.eval.regions import RegionPool, changing_pixels, frame_regions, moving_from_labels
+from recon.eval.evaluate import markdown_table
+from recon.eval.regions import (RegionPool, changing_pixels, frame_regions, moving_from_labels, object_masks,
+                               object_names)
 from recon.eval.renders import write_render_pixels
 
 
@@ -45,6 +48,29 @@ def test_pooled_metrics_weigh_pixels_not_frames():
     rgb.add("rgb", {"moving": big, "static": None}, sq)
     res = rgb.result()["rgb"]
     assert res["moving"]["psnr"] == pytest.approx(20.0) and res["static"] is None   # unknown stays unknown
+
+
+def test_objects_are_named_regions_pooled_over_frames():
+    labels = np.zeros((4, 6), np.uint8)
+    labels[0, :2] = 1
+    labels[1, :3] = 2
+    labels[2, :] = 3
+    names = {1: {"name": "pan", "moving": False}, 2: {"name": "ball", "moving": True},
+             3: {"name": "ball", "moving": True}, 4: {"name": "", "moving": True}}
+    assert object_names(names) == {1: "pan", 2: "ball (label 2)", 3: "ball (label 3)", 4: "label 4"}
+    valid = np.ones((4, 6), bool)
+    valid[2, 0] = False
+    objs = object_masks(labels, names, valid)
+    assert sorted(objs) == ["ball (label 2)", "ball (label 3)", "pan"]      # label 4 is not in view
+    assert objs["pan"].sum() == 2 and objs["ball (label 3)"].sum() == 5     # invalid pixels left out
+    assert object_masks(labels, {}) == {} and object_masks(None, names) == {}
+    pool = RegionPool()
+    moving = {n: names[k]["moving"] for k, n in object_names(names).items()}
+    pool.add_objects("thermal", objs, np.where(labels == 1, 2.0, 0.5), moving)
+    pool.add_objects("thermal", {"pan": labels == 1}, np.full((4, 6), 5.0), moving)   # a second frame
+    out = pool.objects()["thermal"]
+    assert out["pan"] == {"mae_k": pytest.approx(3.5), "p95_k": pytest.approx(5.0), "pixels": 4, "moving": False}
+    assert out["ball (label 2)"]["mae_k"] == pytest.approx(0.5) and out["ball (label 2)"]["moving"]
 
 
 def test_a_still_camera_without_masks_finds_what_changes():
@@ -83,6 +109,12 @@ def test_simulator_writes_masks_and_an_offset_on_the_moving_object_shows_only_th
     assert th["static"]["mae_k"] < 0.01 and th["moving"]["p95_k"] == pytest.approx(offset, abs=0.01)
     assert math.isinf(result["regions"]["rgb"]["moving"]["psnr"])
     assert "regions" in result["per_frame"][0]
+    objects = result["objects"]["thermal"]                 # each moving object carries the offset
+    assert objects and all(m["mae_k"] == pytest.approx(offset if m["moving"] else 0.0, abs=0.01)
+                           for m in objects.values()), objects
+    assert any(m["moving"] for m in objects.values())
+    assert "| thermal | " + next(iter(objects)) + " |" in markdown_table(result)
+    assert flatten(result)["mae_k_worst_moving_object"] == pytest.approx(offset, abs=0.01)   # tables' column
 
 
 def test_a_bad_mask_is_named(family, tmp_path):

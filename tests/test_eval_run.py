@@ -117,3 +117,19 @@ def test_cli_strips_are_gt_render_error_with_colourbars(dataset, tmp_path):
     rgb = cv2.imread(str(strips / ds.split("rgb", "test")[0].file_path))[..., ::-1]
     d_bar = colorbar(panel_h, 0, 0.25, "inferno", unit="|d|", offset=0.0)
     assert rgb.shape == (panel_h + band, 3 * panel_w + d_bar.shape[1] + 3 * gap, 3)
+
+
+def test_a_single_modality_run_is_graded_on_its_own_modality(dataset, tmp_path, capsys):
+    """A thermal-only method (its config.json says so) writes no RGB renders: `recon eval` grades
+    the thermal frames instead of calling every RGB render missing; without a config, the
+    renders/ folders present decide."""
+    ds = load_dataset(dataset)
+    _copy_gt(ds, tmp_path)
+    shutil.rmtree(tmp_path / "renders" / "rgb")
+    assert recon_main(["eval", str(tmp_path), str(dataset), "--no-lpips", "--strips"]) == 0
+    result = json.loads((tmp_path / "eval" / "metrics.json").read_text())
+    assert list(result["mean"]) == ["thermal"] and result["mean"]["thermal"]["mae_k"] == 0.0
+    assert not (tmp_path / "eval" / "strips" / "rgb").exists()
+    (tmp_path / "config.json").write_text(json.dumps({"model": {"modalities": ["rgb", "thermal"]}}))
+    assert recon_main(["eval", str(tmp_path), str(dataset), "--no-lpips"]) == 2      # the config asks for RGB
+    assert "renders missing" in capsys.readouterr().err

@@ -25,7 +25,14 @@ def flatten(metrics: dict) -> dict:
             "mae_k_moving_hot": get("regions", "thermal", "moving_hot", "mae_k"),
             "mae_k_static": get("regions", "thermal", "static", "mae_k"),
             "mae_k_hot": get("regions", "thermal", "hot", "mae_k"),
-            "p95_k_moving": get("regions", "thermal", "moving", "p95_k")}
+            "p95_k_moving": get("regions", "thermal", "moving", "p95_k"),
+            "mae_k_worst_moving_object": _worst_moving(get("objects", "thermal"))}
+
+
+def _worst_moving(objects: dict | None) -> float | None:
+    """The largest thermal MAE of a moving named object (None: no such object graded)."""
+    maes = [m["mae_k"] for m in (objects or {}).values() if m.get("moving") and m.get("mae_k") is not None]
+    return max(maes) if maes else None
 
 
 def _dig(d, path):

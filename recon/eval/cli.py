@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -16,8 +17,10 @@ examples:
   recon eval runs/dtg-sim data/sim --strips      # + GT | render | error pictures
 
 The render of ground-truth frame F must be RUN_DIR/renders/<F.file_path>, encoded like the
-ground truth (RGB 8-bit PNG, thermal 16-bit PNG in the dataset's thermal_scale_k). Writes
-metrics.json (per frame and mean per modality) and metrics.md. SSIM: 11x11 Gaussian window,
+ground truth (RGB 8-bit PNG, thermal 16-bit PNG in the dataset's thermal_scale_k), for the
+modalities the run renders (RUN_DIR/config.json: a single-modality method, only its own). Writes
+metrics.json (per frame and mean per modality, per region, per named object with masks) and
+metrics.md. SSIM: 11x11 Gaussian window,
 sigma 1.5 (3DGS convention). LPIPS: AlexNet v0.1, official [-1, 1] input convention, only
 if its weights are installed (`make setup`); otherwise it is omitted and the output says so.
 """
@@ -39,23 +42,37 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def run_modalities(run_dir: Path) -> tuple[str, ...]:
+    """The modalities a run renders: its config.json's model.modalities (a single-modality method
+    writes only its own), else the renders/ folders present, else both."""
+    try:
+        found = json.loads((run_dir / "config.json").read_text())["model"]["modalities"]
+        if found:
+            return tuple(found)
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    present = tuple(m for m in ("rgb", "thermal") if (run_dir / "renders" / m).is_dir())
+    return present or ("rgb", "thermal")
+
+
 def run(args) -> int:
     def progress(done: int, total: int) -> None:
         if done == total or done % max(1, total // 10) == 0:
             print(f"  {done}/{total} frames", flush=True)
 
     try:
+        modalities = run_modalities(args.run_dir)
         result = evaluate_run(args.run_dir, args.dataset_dir, args.split,
-                              use_lpips=not args.no_lpips, progress=progress)
+                              use_lpips=not args.no_lpips, progress=progress, modalities=modalities)
     except (RenderError, DatasetError, ValueError) as e:
         print(f"recon eval: {e}", file=sys.stderr)
         return 2
     out = args.out or args.run_dir / "eval"
     js, md = write_results(result, out)
     if args.strips:
-        print(f"wrote {len(write_strips(args.run_dir, args.dataset_dir, out / 'strips', args.split))} "
+        print(f"wrote {len(write_strips(args.run_dir, args.dataset_dir, out / 'strips', args.split, modalities))} "
               f"pictures to {out / 'strips'}")
-    table = markdown_table(result).split("\n\n")
-    print("\n\n".join(table[:3]))
+    blocks = markdown_table(result).split("\n\n")
+    print("\n\n".join([blocks[0]] + [b for b in blocks[1:] if b.startswith("| modality |")]))
     print(f"wrote {js} and {md}")
     return 0

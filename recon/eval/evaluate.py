@@ -22,7 +22,8 @@ from recon.eval.lpips import MIN_SIDE as LPIPS_MIN_SIDE
 from recon.eval.lpips import Lpips
 from recon.eval.metrics import psnr, ssim, thermal_mae_k
 from recon.viz import rgb_strip, save_png, thermal_strip
-from recon.eval.regions import RegionPool, changing_pixels, frame_regions, moving_from_labels
+from recon.eval.regions import (RegionPool, changing_pixels, frame_regions, moving_from_labels, object_masks,
+                                object_names)
 from recon.eval.renders import RenderError, find_render, read_render, render_path
 
 METRICS = {"rgb": ("psnr", "ssim", "lpips"), "thermal": ("psnr", "ssim", "lpips", "mae_k")}
@@ -79,6 +80,9 @@ def frame_metrics(ds: Dataset, frame: Frame, render: np.ndarray, lpips: Lpips | 
         error = np.abs(pred_k - gt) if frame.modality == "thermal" else (a - np.asarray(b)) ** 2
         regions = frame_regions(frame.modality, np.asarray(gt), valid, moving)
         out["regions"] = pool.add(frame.modality, regions, np.nan_to_num(error))
+        names = object_names(ds.mask_labels)
+        pool.add_objects(frame.modality, object_masks(ds.mask(frame), ds.mask_labels, valid),
+                         np.nan_to_num(error), {names[k]: bool(v.get("moving", True)) for k, v in ds.mask_labels.items()})
     return out
 
 
@@ -133,16 +137,17 @@ def evaluate_run(run_dir: str | Path, dataset_dir: str | Path, split: str = "tes
         },
         "mean": means,
         "regions": pool.result(),
+        "objects": pool.objects(),
         "per_frame": per_frame,
     }
 
 
 def write_strips(run_dir: str | Path, dataset_dir: str | Path, out_dir: str | Path,
-                 split: str = "test") -> list[Path]:
+                 split: str = "test", modalities=("rgb", "thermal")) -> list[Path]:
     """GT | render | error pictures (recon.viz) of every evaluated frame, at out_dir/<file_path>.png."""
     ds = load_dataset(dataset_dir)
     written = []
-    for frame in (f for f in ds.frames if split == "all" or f.split == split):
+    for frame in (f for f in ds.frames if (split == "all" or f.split == split) and f.modality in modalities):
         render = read_render(run_dir, frame)
         if frame.modality == "rgb":
             picture = rgb_strip(ds.image(frame), render)
@@ -173,6 +178,18 @@ def region_table(regions: dict) -> list[str]:
     return lines
 
 
+def object_table(objects: dict) -> list[str]:
+    """Markdown lines: one row per modality and named object (datasets with mask_labels)."""
+    if not any(objects.values()):
+        return []
+    lines = ["", "| modality | object | moves | pixels | MAE (K) | p95 (K) | PSNR (dB) |", "|---|---|---|---|---|---|---|"]
+    for modality, by_name in objects.items():
+        for name, m in by_name.items():
+            lines.append(f"| {modality} | {name} | {'yes' if m['moving'] else 'no'} | {m['pixels']} | "
+                         f"{_fmt(m.get('mae_k'), 3)} | {_fmt(m.get('p95_k'), 2)} | {_fmt(m.get('psnr'), 2)} |")
+    return lines
+
+
 def markdown_table(result: dict) -> str:
     """Mean table per modality, then every frame."""
     cols = [("psnr", "PSNR (dB)", 2), ("ssim", "SSIM", 4), ("lpips", "LPIPS", 4), ("mae_k", "MAE (K)", 3)]
@@ -183,6 +200,7 @@ def markdown_table(result: dict) -> str:
         lines.append(f"| {modality} | {m['frames']} | "
                      + " | ".join(_fmt(m.get(k), d) for k, _, d in cols) + " |")
     lines += region_table(result.get("regions", {}))
+    lines += object_table(result.get("objects", {}))
     lines += ["", *(f"- {k}: {v}" for k, v in result["conventions"].items()), "",
               "| frame | modality | time | " + " | ".join(c[1] for c in cols) + " |",
               "|---|---|---|" + "---|" * len(cols)]

@@ -12,6 +12,10 @@ thermographer came to measure are a few percent of the pixels. Regions of a fram
 - ``moving_hot`` (thermal): both.
 - ``static``: valid pixels not moving (unknown when moving is).
 
+Objects: with masks and named ``mask_labels``, each labelled object is a region of its own
+(``object_masks``): the error on the ball, the pan or the solder tip, whichever else is in view.
+Frames without masks add nothing to them; an object out of every evaluated frame is not listed.
+
 Metrics pool the pixels of every evaluated frame of a modality (so a frame with a sliver of a
 region does not weigh as much as one where it fills the view): thermal ``mae_k``, ``p95_k`` (95th
 percentile of the absolute error) and ``pixels``; RGB ``psnr`` of the pooled squared error over
@@ -36,6 +40,30 @@ def moving_from_labels(labels: np.ndarray, mask_labels: dict[int, dict]) -> np.n
         return labels > 0
     moving = [k for k, v in mask_labels.items() if v["moving"]]
     return np.isin(labels, moving)
+
+
+def object_names(mask_labels: dict[int, dict]) -> dict[int, str]:
+    """label -> the object's name (``label N`` when it has none; repeated names get their label)."""
+    names = {k: str(v.get("name") or f"label {k}") for k, v in mask_labels.items()}
+    counts: dict[str, int] = {}
+    for n in names.values():
+        counts[n] = counts.get(n, 0) + 1
+    return {k: n if counts[n] == 1 else f"{n} (label {k})" for k, n in names.items()}
+
+
+def object_masks(labels: np.ndarray | None, mask_labels: dict[int, dict],
+                 valid: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """(H, W) bool per named object present in this frame's labels (valid pixels only); {} without a
+    mask or without mask_labels (unnamed labels are not objects a user can look up)."""
+    if labels is None or not mask_labels:
+        return {}
+    present = set(np.unique(labels).tolist())
+    out = {}
+    for k, name in object_names(mask_labels).items():
+        if k in present:
+            m = labels == k
+            out[name] = m if valid is None else m & valid
+    return out
 
 
 def changing_pixels(images: list[np.ndarray], modality: str) -> list[np.ndarray]:
@@ -77,11 +105,32 @@ def _rgb(squared: np.ndarray) -> dict:
 
 
 class RegionPool:
-    """Collects each region's pixel errors over frames; `result()` gives the pooled metrics."""
+    """Collects each region's (and object's) pixel errors over frames; `result()` and `objects()`
+    give the pooled metrics."""
 
     def __init__(self):
         self._errors: dict[str, dict[str, list]] = {}
         self._known: dict[str, dict[str, bool]] = {}
+        self._objects: dict[str, dict[str, list]] = {}
+        self._moving: dict[str, bool] = {}
+
+    def add_objects(self, modality: str, objects: dict[str, np.ndarray], error: np.ndarray,
+                    moving: dict[str, bool]) -> None:
+        """objects: object_masks() of a frame; error as in add(); moving: name -> whether it moves."""
+        for name, mask in objects.items():
+            self._objects.setdefault(modality, {}).setdefault(name, []).append(error[mask])
+            self._moving[name] = bool(moving.get(name, True))
+
+    def objects(self) -> dict[str, dict[str, dict]]:
+        """{modality: {object name: pooled metrics + "moving"}}, objects in name order."""
+        out = {}
+        for modality, by_name in self._objects.items():
+            out[modality] = {}
+            for name in sorted(by_name):
+                pooled = np.concatenate(by_name[name])
+                metrics = _thermal(pooled) if modality == "thermal" else _rgb(pooled)
+                out[modality][name] = {**metrics, "moving": self._moving[name]}
+        return out
 
     def add(self, modality: str, regions: dict[str, np.ndarray | None], error: np.ndarray) -> dict:
         """error: thermal |pred - gt| kelvin (H, W), or RGB squared error (H, W, 3). Returns this
