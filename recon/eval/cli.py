@@ -20,9 +20,9 @@ The render of ground-truth frame F must be RUN_DIR/renders/<F.file_path>, encode
 ground truth (RGB 8-bit PNG, thermal 16-bit PNG in the dataset's thermal_scale_k), for the
 modalities the run renders (RUN_DIR/config.json: a single-modality method, only its own). Writes
 metrics.json (per frame and mean per modality, per region, per named object with masks) and
-metrics.md. SSIM: 11x11 Gaussian window,
-sigma 1.5 (3DGS convention). LPIPS: AlexNet v0.1, official [-1, 1] input convention, only
-if its weights are installed (`make setup`); otherwise it is omitted and the output says so.
+metrics.md. SSIM: 11x11 Gaussian window, sigma 1.5 (3DGS convention). LPIPS: AlexNet v0.1,
+official [-1, 1] input convention, only if its weights are installed (`make setup`); otherwise
+it is omitted and the output says so.
 """
 
 

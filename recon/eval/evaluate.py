@@ -81,8 +81,9 @@ def frame_metrics(ds: Dataset, frame: Frame, render: np.ndarray, lpips: Lpips | 
         regions = frame_regions(frame.modality, np.asarray(gt), valid, moving)
         out["regions"] = pool.add(frame.modality, regions, np.nan_to_num(error))
         names = object_names(ds.mask_labels)
+        moves = {names[k]: bool(v.get("moving", True)) for k, v in ds.mask_labels.items()}
         pool.add_objects(frame.modality, object_masks(ds.mask(frame), ds.mask_labels, valid),
-                         np.nan_to_num(error), {names[k]: bool(v.get("moving", True)) for k, v in ds.mask_labels.items()})
+                         np.nan_to_num(error), moves)
     return out
 
 

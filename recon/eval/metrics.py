@@ -96,7 +96,7 @@ def _blur(x: torch.Tensor, valid: bool = False) -> torch.Tensor:
         return out[:, r:-r, r:-r] if valid else out
     k, pad = x.shape[-1], 0 if valid else r
     g = _gauss_1d(x.dtype, str(x.device))
-    y = x.permute(0, 3, 1, 2)  # channels-last memory: the depthwise conv is 3x faster so than planar
+    y = x.permute(0, 3, 1, 2)  # a channels-last view: depthwise conv2d is 3x faster on it than planar
     y = F.conv2d(y, g.view(1, 1, WINDOW, 1).expand(k, 1, WINDOW, 1), padding=(pad, 0), groups=k)
     y = F.conv2d(y, g.view(1, 1, 1, WINDOW).expand(k, 1, 1, WINDOW), padding=(0, pad), groups=k)
     return y.permute(0, 2, 3, 1)
