@@ -59,8 +59,6 @@ inline int mask8(i8 m) {
   return r;
 }
 #endif
-inline bool any8(i8 m) { return mask8(m) != 0; }
-inline int count8(i8 m) { return __builtin_popcount(mask8(m)); }
 #ifdef __AVX512F__
 inline unsigned masks(is m) { return _mm512_cmplt_epi32_mask((__m512i)m, _mm512_setzero_si512()); }
 inline float hsums(fs v) { return _mm512_reduce_add_ps((__m512)v); }
@@ -108,7 +106,6 @@ inline F exp_reduced(F x, IntOf<F> n, F nf) {
   __builtin_memcpy(&scale, &e, sizeof(scale));
   return p * scale;
 }
-inline f8 exp_reduced8(f8 x, i8 n, f8 nf) { return exp_reduced(x, n, nf); }
 
 // exp(x) for x <= 0 (the compositing hot loop); inputs below -87 return ~0.
 template <class F>
@@ -119,7 +116,6 @@ inline F exp_nonpositive(F x) {
   const IntOf<F> n = __builtin_convertvector(x * 1.44269504088896341f - 0.5f, IntOf<F>);
   return exp_reduced(x, n, __builtin_convertvector(n, F));
 }
-inline f8 exp8(f8 x) { return exp_nonpositive(x); }
 
 // exp(x) for any x, clamped to [-87, 88] (e.g. log-scales).
 inline f8 expf8(f8 x) {
@@ -127,7 +123,7 @@ inline f8 expf8(f8 x) {
   // round to nearest: adding 1.5 * 2^23 leaves no fraction bits (IEEE semantics, no fast-math)
   const f8 big = splat8(12582912.0f);
   const f8 nf = (x * splat8(1.44269504088896341f) + big) - big;
-  return exp_reduced8(x, __builtin_convertvector(nf, i8), nf);
+  return exp_reduced(x, __builtin_convertvector(nf, i8), nf);
 }
 
 // ln(x) for finite x > 0 (Cephes logf polynomial, ~1 ulp).
