@@ -145,7 +145,8 @@ def finish(trainer: Trainer, run_dir: Path, dataset_dir: Path, test_scene: Scene
         "method": trainer.cfg.method, "dataset": str(dataset_dir), "iterations": trainer.iteration,
         "train_seconds": round(trainer.elapsed, 2), "gaussians": trainer.model.num_gaussians,
         "gaussians_per_role": trainer.counts(), "model_bytes": model_bytes(trainer.model),
-        "metrics": {**report.get("mean", {}), "regions": report.get("regions", {})},
+        "metrics": {**report.get("mean", {}), "regions": report.get("regions", {}),
+                    "objects": report.get("objects", {})},
         "finish_seconds": round(time.perf_counter() - t0, 2),
         "stop_reason": trainer.stop_reason(), "events": trainer.events,
     }

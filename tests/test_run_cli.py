@@ -44,7 +44,9 @@ def test_run_writes_renders_metrics_exports(run):
         assert img.dtype == (np.uint8 if f.modality == "rgb" else np.uint16)
     summary = json.loads((out / "metrics.json").read_text())
     assert summary["iterations"] == 20
-    assert set(summary["metrics"]) == {"rgb", "thermal", "regions"}
+    assert set(summary["metrics"]) == {"rgb", "thermal", "regions", "objects"}
+    objects = summary["metrics"]["objects"]["thermal"]      # the simulator names its objects
+    assert objects and all(m["pixels"] > 0 and m["mae_k"] >= 0 for m in objects.values())
     assert summary["metrics"]["thermal"]["mae_k"] > 0
     assert sum(summary["gaussians_per_role"].values()) == summary["gaussians"]
     assert (out / "eval" / "metrics.md").exists() and (out / "animation.gif").exists()
