@@ -10,6 +10,7 @@ COLUMNS = [("psnr_rgb", "RGB PSNR", 2, True), ("psnr_rgb_moving", "RGB PSNR movi
            ("psnr_thermal", "th PSNR", 2, True), ("mae_k_thermal", "th MAE K", 2, False),
            ("mae_k_moving", "MAE moving", 2, False), ("mae_k_moving_hot", "MAE moving-hot", 2, False),
            ("mae_k_static", "MAE static", 2, False), ("p95_k_moving", "p95 moving", 1, False),
+           ("mae_k_worst_moving_object", "MAE worst moving object", 1, False),
            ("gaussians", "Gaussians", 0, None), ("iterations", "it", 0, None), ("train_s", "train s", 0, None),
            ("ms_per_it", "ms/it", 1, None)]
 
