@@ -22,9 +22,10 @@ namespace {
 
 constexpr float kC1 = 0.01f * 0.01f, kC2 = 0.03f * 0.03f;
 
-// Row y of `planes` input planes (each (H, row) of image b) blurred, into out[p] (row floats each).
-// tmp: planes x (row + 2 pad) floats of scratch, whose pad floats either side stay 0 (the
-// horizontal zero padding). Input element e of plane p in row yy: in(p, yy, e).
+// Row y of `planes` planes of one image, each (H, row) floats, blurred into out[p] (row floats
+// each). tmp: planes x (row + 2 pad) floats of scratch whose pad floats either side stay 0 (the
+// horizontal zero padding). in(yy, g, t, stride) adds g x input row yy of plane p to
+// t + p * stride, for every plane: the vertical pass, so inputs can be computed on the fly.
 template <typename In>
 void blur_row(int planes, int64_t H, int64_t y, int64_t row, int64_t K, const float* taps, int r,
               float* tmp, float* const* out, In in) {

@@ -18,7 +18,6 @@ namespace splat {
 namespace {
 
 constexpr int kTilePixels = kTile * kTile;
-constexpr int kStrips = kTile / kStripLanes;
 
 const fs kLaneOffset = [] {  // pixel-centre offsets of a strip's lanes
   fs v;
