@@ -11,7 +11,7 @@ import torch
 
 from recon.splat.cameras import PinholeCamera, viewmat_from_c2w_opengl
 from recon.splat.ply import read_gaussians_ply
-from recon.splat.rasterization import rasterization
+from recon.splat.rasterization import check_cull_beside, rasterization
 
 EPILOG = """examples:
   recon splat-render point_cloud.ply --transforms data/scene/transforms.json --frame 0 --out f0.png
@@ -68,15 +68,13 @@ def parse_background(text: str) -> torch.Tensor:
 
 
 def parse_cull_beside(text: str) -> float | None:
+    """argparse type of --cull-beside: 'off' or what rasterization's check_cull_beside accepts."""
     if text == "off":
         return None
     try:
-        value = float(text)
+        return check_cull_beside(float(text))
     except ValueError:
-        value = -1.0
-    if not 0.0 <= value < float("inf"):
-        raise argparse.ArgumentTypeError(f"--cull-beside must be a number >= 0 or 'off', got {text!r}")
-    return value
+        raise argparse.ArgumentTypeError(f"--cull-beside must be a number >= 0 or 'off', got {text!r}") from None
 
 
 def render_ply(ply_path: Path, camera: PinholeCamera, background: torch.Tensor,

@@ -81,11 +81,15 @@ def intrinsics(fx, fy, cx, cy, width, height, near_plane=NEAR_PLANE, window=None
     window = (0, 0, width, height) if window is None else tuple(int(v) for v in window)
     if len(window) != 4 or min(window[:2]) < 0 or window[0] + width > window[2] or window[1] + height > window[3]:
         raise ValueError(f"window {window} must be (x0, y0, full_width, full_height) holding the {width}x{height} image")
-    if cull_beside is not None and (isinstance(cull_beside, bool) or not isinstance(cull_beside, (int, float))
-                                    or not 0 <= cull_beside < float("inf")):
-        raise ValueError(f"cull_beside must be None or a finite number >= 0, got {cull_beside!r}")
-    beside = -1.0 if cull_beside is None else float(cull_beside)
+    beside = -1.0 if cull_beside is None else check_cull_beside(cull_beside)
     return (float(fx), float(fy), float(cx), float(cy), width, height, float(near_plane), window, beside)
+
+
+def check_cull_beside(value) -> float:
+    """A `cull_beside` margin as float; ValueError unless it is a finite number >= 0."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < float("inf"):
+        raise ValueError(f"cull_beside must be None or a finite number >= 0, got {value!r}")
+    return float(value)
 
 
 def _check_features(features, sh_degree, n: int) -> None:
