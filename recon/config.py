@@ -359,13 +359,6 @@ class CurriculumConfig:
     level: bool = False
     outside: float = 0.0              # probability of a time step outside the window, with a loss
     outside_keep: float = 0.9         # over the best-fitting fraction of its pixels only
-    # Every this many iterations (0: off) until progress triangulate_until, each body's knots in
-    # the window slide along their training rays to the smoothest path through them
-    # (recon/train/triangulate.py): depth from the camera's motion, not from one view.
-    # triangulate_smooth weighs squared acceleration against squared distance from the rays.
-    triangulate_every: int = 0
-    triangulate_smooth: float = 100.0
-    triangulate_until: float = 2 / 3
 
 
 @dataclass

@@ -28,7 +28,6 @@ from recon.train import timeline
 from recon.train.checkpoint import read_checkpoint, write_checkpoint
 from recon.train.resolution import downscale, factor_at, random_crop
 from recon.train.curriculum import TimeWindow, continue_beyond, frames_at, place_bases
-from recon.train.triangulate import retriangulate
 from recon.train.guard import DivergenceGuard, Event, TrainingDiverged, median_motion, nonfinite_parameter
 from recon.train.holdout import holdout_psnr, holdout_views
 from recon.train.anchors import anchor_loss
@@ -299,15 +298,13 @@ class Trainer:
                     place_bases(self.model, frames_at(self.scene, self.cfg.model.modalities, when), when, side,
                                 hold_depth=self.cfg.curriculum.hold_depth,
                                 up=self.up if self.cfg.curriculum.level else None)
-        stats = {}
-        self._triangulate(p, stats)
         if self.held is not None:
             t = self.train_times[int(torch.randint(len(self.train_times), (1,), generator=self.gen))]
         else:
             t = self.window.pick(self.train_times, self.gen)
         mods = [m for m in ("rgb", "thermal") if m in self.cfg.model.modalities and self.scene.views_at(m, t)]
         noise = self._routing_noise(p)
-        rgb_geometry = None
+        stats, rgb_geometry = {}, None
         for i, m in enumerate(mods):
             res = self._stage(m, t, p, noise, rgb_geometry if m == "thermal" else None, regularise=(i == 0))
             stats.update(res["stats"])
@@ -328,18 +325,6 @@ class Trainer:
             self.schedule.advance(self.iteration, self.elapsed)
             self._after_hold()
         return stats
-
-    def _triangulate(self, p: float, stats: dict) -> None:
-        """Every curriculum.triangulate_every iterations: the bodies' depths from the camera's motion."""
-        c = self.cfg.curriculum
-        if (c.triangulate_every <= 0 or self.model.motion is None or self.held is not None or p >= c.triangulate_until
-                or self.iteration == 0 or self.iteration % c.triangulate_every):
-            return
-        lo, hi = self.window.span()
-        moved = retriangulate(self.model, self.scene, lo, hi, c.triangulate_smooth, modality=self.scene.modalities()[0])
-        if moved:
-            continue_beyond(self.model, lo, hi)
-            stats["triangulate_depth_change"] = max(m["depth_change"] for m in moved)
 
     def _after_hold(self) -> None:
         """Once the schedule's hold has ended: say why, and train on the held-out time steps too
