@@ -83,12 +83,15 @@ class EmbeddingSmoothness:
             self._neighbours = knn_indices(means.detach(), self.k)
             self._n = n
         idx = torch.randperm(n, generator=generator)[: self.sample]
-        nb = self._neighbours[idx]                                       # (S, k)
-        fixed = means.detach()
-        d2 = (fixed.index_select(0, idx)[:, None] - gather_rows(fixed, nb)).pow(2).sum(-1)
+        # each sampled row and its k neighbours in one gather: the backward then zero-fills one
+        # dense (N, D) gradient per embedding, not two (1.5 ms each at 80k Gaussians)
+        rows = torch.cat([idx[:, None], self._neighbours[idx]], 1)       # (S, 1 + k)
+        fixed = gather_rows(means.detach(), rows)
+        d2 = (fixed[:, :1] - fixed[:, 1:]).pow(2).sum(-1)
         w = torch.exp(-self.falloff * d2 / max(self.extent, 1e-9) ** 2)
         total = 0
         for e in embeddings:
-            diff = (e.index_select(0, idx)[:, None] - gather_rows(e, nb)).pow(2).sum(-1)
+            sub = gather_rows(e, rows)
+            diff = (sub[:, :1] - sub[:, 1:]).pow(2).sum(-1)
             total = total + torch.sqrt(w * diff + 1e-20).mean()
         return total
