@@ -122,10 +122,6 @@ class ModelConfig:
     # RGB 17.26 -> 18.21 dB median, worst seed 12.38 -> 15.71, better on 7 of 8; inside within
     # +-0.3 dB per seed; 0.5-2 view widths graded alike without retraining.
     cull_off_view: float | None = 1.0
-    # With bodies, the networks give the static scene (Gaussians in no body) only the time
-    # embedding's coarse rows: its temperature may drift slowly (a warm spot cooling), but it
-    # cannot flash hot for the few steps an object passes in front of it in the one training view.
-    static_coarse_time: bool = False
     body_reach: float = 0.0          # a body's Gaussians stay within this x its farthest initial point
                                      # of its pivot (MotionBases.keep_within); 0: unbounded
     # A bias on the deformation's geometry outputs moves every Gaussian alike. Adam moves it by

@@ -225,26 +225,3 @@ def test_climb_prices_vertical_speed_only():
     climb.backward()
     grad = bases.translation.grad[1, 3]
     assert float(grad.norm()) > 0 and float((grad - (grad @ up) * up).norm()) < 1e-6
-
-
-def test_static_gaussians_see_only_the_coarse_time_rows():
-    """DeformationNet's `fine` (model.static_coarse_time): a row with fine 0 ignores the time
-    embedding's fine half, a row with 1 is what the plain network gives, and gradients reach the
-    fine half only through the rows that see it."""
-    from recon.dtg.deformation import DeformationNet
-    torch.manual_seed(0)
-    net = DeformationNet(8, 4, 16, {"means": 3, "features_thermal": 1})
-    torch.nn.init.normal_(net.out.weight)
-    e_t, emb = torch.randn(8, requires_grad=True), torch.randn(5, 4)
-    fine = torch.tensor([0.0, 0.0, 1.0, 1.0, 0.0])
-    plain, masked = net(e_t, emb), net(e_t, emb, fine)
-    for k in plain:
-        torch.testing.assert_close(masked[k][2:4], plain[k][2:4])
-    shifted = e_t.detach().clone()
-    shifted[4:] += 1.0                               # another fine row, the same coarse one
-    moved = net(shifted, emb, fine)
-    for k in plain:
-        torch.testing.assert_close(moved[k][[0, 1, 4]], masked[k][[0, 1, 4]])
-        assert float((moved[k][2:4] - masked[k][2:4]).detach().abs().max()) > 1e-3
-    grad, = torch.autograd.grad(masked["means"][[0, 1, 4]].sum(), e_t)
-    assert float(grad[4:].abs().max()) == 0.0 and float(grad[:4].abs().max()) > 0

@@ -34,20 +34,11 @@ class DeformationNet(nn.Module):
         self.register_buffer("bias_mask", mask, persistent=False)
         self._sizes = sizes
 
-    def forward(self, e_t: torch.Tensor, embeddings: torch.Tensor,
-                fine: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        """e_t: (D_t,) coarse | fine halves; embeddings: (N, D_e) -> {name: (N, size)}.
-        fine: (N,) how much of the fine half each Gaussian sees (None: all of it)."""
+    def forward(self, e_t: torch.Tensor, embeddings: torch.Tensor) -> dict[str, torch.Tensor]:
+        """e_t: (D_t,); embeddings: (N, D_e) -> {name: (N, size)}"""
         # the time part as the bias of the embedding part's matmul (one addmm, no (N, W) add);
         # ReLUs in place on outputs no backward needs
-        if fine is None:
-            h = nn.functional.linear(embeddings, self.embedding_in.weight, self.time_in(e_t)).relu_()
-        else:
-            half = e_t.shape[0] // 2
-            w = self.time_in.weight
-            coarse = nn.functional.linear(e_t[:half], w[:, :half], self.time_in.bias)
-            h = torch.addr(nn.functional.linear(embeddings, self.embedding_in.weight, coarse),
-                           fine, w[:, half:] @ e_t[half:]).relu_()
+        h = nn.functional.linear(embeddings, self.embedding_in.weight, self.time_in(e_t)).relu_()
         h = self.hidden(h).relu_()
         out = nn.functional.linear(h, self.out.weight, self.out.bias * self.bias_mask)
         return dict(zip(self.outputs, torch.split(out, self._sizes, dim=1)))

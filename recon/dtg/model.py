@@ -83,19 +83,10 @@ class DTGModel(nn.Module):
         key = "embedding" if stage == "shared" else f"embedding_{stage}"
         e_t = self.time_embedding(t, progress)
         if rows is None:
-            return self.deformers[stage](e_t, self.gaussians[key], self.fine_time(None))
-        part = self.deformers[stage](e_t, self.gaussians[key].index_select(0, rows), self.fine_time(rows))
+            return self.deformers[stage](e_t, self.gaussians[key])
+        part = self.deformers[stage](e_t, self.gaussians[key].index_select(0, rows))
         n = self.num_gaussians
         return {k: v.new_zeros(n, v.shape[1]).index_copy(0, rows, v) for k, v in part.items()}
-
-    def fine_time(self, rows: torch.Tensor | None) -> torch.Tensor | None:
-        """(R,) how much of the time embedding's fine rows the networks give Gaussians `rows` (None:
-        every Gaussian, all of them): with ModelConfig.static_coarse_time, 1 for body members, 0
-        for the static scene."""
-        if not (self.cfg.static_coarse_time and self.motion is not None):
-            return None
-        basis = self.gaussians["motion_basis"] if rows is None else self.gaussians["motion_basis"][rows]
-        return (basis > 0).to(self.gaussians["means"].dtype)
 
     def moves_geometry(self, stage: str) -> bool:
         """Whether a stage's network predicts geometry residuals (then every Gaussian's are needed
@@ -142,8 +133,7 @@ class DTGModel(nn.Module):
             moved = torch.zeros_like(self.gaussians["means"][index])
         else:
             key = "embedding" if stage == "shared" else f"embedding_{stage}"
-            res = self.deformers[stage](self.time_embedding(t, progress), self.gaussians[key][index],
-                                        self.fine_time(index))
+            res = self.deformers[stage](self.time_embedding(t, progress), self.gaussians[key][index])
             moved = res["means"]
             gate = self.geometry_gate(stage)
             if gate is not None:
