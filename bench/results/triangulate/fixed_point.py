@@ -3,8 +3,9 @@ and where one more smoothest-path solve (recon/train/triangulate.py at 23f028c) 
 
     GMIN=0 PYTHONPATH=CHECKOUT_AT_23f028c python bench/results/triangulate/fixed_point.py RUN DATA family-inside 40
 
-GMIN: only body members whose gate exceeds it make the centre. Development seeds only."""
-import sys, json, numpy as np, torch
+GMIN: only body members whose gate exceeds it make the centre. OPAC: the opacity that weighs the
+centre (default opacity_rgb; opacity_thermal). Development seeds only."""
+import os, sys, json, numpy as np, torch
 from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "bench"))
 from pathlib import Path
@@ -21,7 +22,7 @@ tr = Trainer.resume(run / 'checkpoints' / 'latest.pt', scene, log=lambda _: None
 o = Oracle(variant, seed)
 m, g = tr.model, tr.model.gaussians
 motion = m.motion; K = motion.translation.shape[1]
-gate = m.dynamic_gate().detach(); w = torch.sigmoid(g['opacity_rgb']).detach() * gate
+gate = m.dynamic_gate().detach(); w = torch.sigmoid(g[os.environ.get('OPAC', 'opacity_rgb')]).detach() * gate
 cams = knot_cameras(scene, 'rgb', K, 0, 1)
 times = np.arange(K) / (K - 1)
 truth = [np.array([o.pose(k, t).position for t in times]) for k in range(len(o.objects))]
