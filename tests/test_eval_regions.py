@@ -60,10 +60,10 @@ def test_objects_are_named_regions_pooled_over_frames():
     assert object_names(names) == {1: "pan", 2: "ball (label 2)", 3: "ball (label 3)", 4: "label 4"}
     valid = np.ones((4, 6), bool)
     valid[2, 0] = False
-    objs = object_masks(labels, names, valid)
+    objs = object_masks(labels, object_names(names), valid)
     assert sorted(objs) == ["ball (label 2)", "ball (label 3)", "pan"]      # label 4 is not in view
     assert objs["pan"].sum() == 2 and objs["ball (label 3)"].sum() == 5     # invalid pixels left out
-    assert object_masks(labels, {}) == {} and object_masks(None, names) == {}
+    assert object_masks(labels, {}) == {} and object_masks(None, object_names(names)) == {}
     pool = RegionPool()
     moving = {n: names[k]["moving"] for k, n in object_names(names).items()}
     pool.add_objects("thermal", objs, np.where(labels == 1, 2.0, 0.5), moving)

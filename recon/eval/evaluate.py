@@ -82,7 +82,7 @@ def frame_metrics(ds: Dataset, frame: Frame, render: np.ndarray, lpips: Lpips | 
         out["regions"] = pool.add(frame.modality, regions, np.nan_to_num(error))
         names = object_names(ds.mask_labels)
         moves = {names[k]: bool(v.get("moving", True)) for k, v in ds.mask_labels.items()}
-        pool.add_objects(frame.modality, object_masks(ds.mask(frame), ds.mask_labels, valid),
+        pool.add_objects(frame.modality, object_masks(ds.mask(frame), names, valid),
                          np.nan_to_num(error), moves)
     return out
 

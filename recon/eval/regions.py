@@ -51,15 +51,16 @@ def object_names(mask_labels: dict[int, dict]) -> dict[int, str]:
     return {k: n if counts[n] == 1 else f"{n} (label {k})" for k, n in names.items()}
 
 
-def object_masks(labels: np.ndarray | None, mask_labels: dict[int, dict],
+def object_masks(labels: np.ndarray | None, names: dict[int, str],
                  valid: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """(H, W) bool per named object present in this frame's labels (valid pixels only); {} without a
-    mask or without mask_labels (unnamed labels are not objects a user can look up)."""
-    if labels is None or not mask_labels:
+    """(H, W) bool per named object present in this frame's labels (valid pixels only); names:
+    object_names() of the dataset's mask_labels. {} without a mask or without names (unnamed
+    labels are not objects a user can look up)."""
+    if labels is None or not names:
         return {}
     present = set(np.unique(labels).tolist())
     out = {}
-    for k, name in object_names(mask_labels).items():
+    for k, name in names.items():
         if k in present:
             m = labels == k
             out[name] = m if valid is None else m & valid
