@@ -16,7 +16,8 @@ its own): the native kernels (projection / rasterization, forward and backward),
 networks' forward, the time embedding, the rigid motion bodies, SSIM's forward, the k-NN
 smoothness, routing, autograd's own backward of the torch ops (the networks', SSIM's, ...: what
 `loss.backward()` spends outside the native kernels), Adam, densification statistics and the
-window's body search; "other" is the rest of the step (Python, loss arithmetic, indexing).
+window's body search, image decoding (zero once the dataset's cache holds every training view, which
+it does before timing: a run decodes each view once); "other" is the rest of the step (Python, loss arithmetic, indexing).
 
 Those scenes are timed early in a run (routing all shared, the time window small). --from-run RUN
 (repeatable) times a trained run instead, as it is at the end: its Gaussians, routing roles and
@@ -96,6 +97,8 @@ def instrument(t: Timers) -> None:
     t.wrap(strategy.Strategy, "accumulate", "densify stats")
     t.wrap(strategy.Strategy, "step", "densify")
     t.wrap(trainer, "place_bases", "window body search")
+    from recon.data.dataset import Dataset
+    t.wrap(Dataset, "image", "images (decode, cached)")
 
 
 def measure(method: str, variant: tuple[str, dict], width: int, height: int, n: int, crop: float, steps: int, warmup: int, threads: int,
@@ -136,7 +139,17 @@ def measure_run(run: Path, progress: float | None, steps: int, warmup: int, thre
     return {**row, "run": str(run), "progress": p}
 
 
+def warm_images(scene: Scene) -> None:
+    """Decode every training view into the dataset's cache, as a run has after its first pass over
+    the views: a short timing would otherwise charge the first decodes (~5 ms a 640x480 frame) to
+    its steps."""
+    for views in scene.train.values():
+        for view in views:
+            scene.target(view)
+
+
 def timed_steps(trainer: Trainer, method: str, size: str, crop: float, threads: int, steps: int, warmup: int) -> dict:
+    warm_images(trainer.scene)
     for _ in range(warmup):
         trainer.step()
     timers = Timers()

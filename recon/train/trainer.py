@@ -225,6 +225,7 @@ class Trainer:
             rec = self.cfg.loss.thermal_l1 * thermal_loss(image[..., 0], target, valid)
         if regularise:
             reg = reg + self._regularisers(stats)
+        reg = reg + self._embedding_smoothness(modality, regularise, stats)
         if modality == "rgb" and self.anchors is not None:
             # a moving point anchors only where its body has been placed: inside the window
             placed = self.held is None and self.window.contains(t)
@@ -257,14 +258,23 @@ class Trainer:
         stats[f"loss_{modality}"] = float(rec.detach())
         return {"stats": stats, "geometry": {k: v.detach() for k, v in g["geometry_residuals"].items()}}
 
+    def _embedding_smoothness(self, modality: str, first: bool, stats: dict):
+        """The k-NN smoothness of the Gaussian embeddings that this stage's network reads (a shared
+        network's: in the first stage only). In the stage that uses them, their gradient is one
+        dense (N, D) tensor and one Adam update per iteration: in another stage it was a second
+        of each (~3 ms at 80k Gaussians, D = 32)."""
+        stage = self.model.stage_of(modality)
+        key = "embedding" if stage == "shared" else f"embedding_{stage}"
+        if (stage is None or key not in self.model.gaussians or self.cfg.loss.embedding_smoothness <= 0
+                or (stage == "shared" and not first)):
+            return 0.0
+        e = self.smoothness(self.model.gaussians["means"], [self.model.gaussians[key]], self.gen)
+        stats[f"embed_{modality}" if stage != "shared" else "embed"] = float(e.detach())
+        return self.cfg.loss.embedding_smoothness * e
+
     def _regularisers(self, stats: dict):
         cfg, model = self.cfg.loss, self.model
         reg = 0.0
-        keys = [k for k in model.gaussians if k.startswith("embedding")]
-        if keys and cfg.embedding_smoothness > 0:
-            e = self.smoothness(model.gaussians["means"], [model.gaussians[k] for k in keys], self.gen)
-            reg = reg + cfg.embedding_smoothness * e
-            stats["embed"] = float(e.detach())
         if model.motion is not None and self.cfg.priors.basis_smoothness > 0:
             acc = model.motion.smoothness(self.extent)
             reg = reg + self.cfg.priors.basis_smoothness * acc
