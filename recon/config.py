@@ -357,13 +357,6 @@ class CurriculumConfig:
     # the direction one view cannot pin is set by the height, as PriorConfig.level_paths holds it
     # (measured together there: off).
     level: bool = False
-    # A step taken in also tries, for each body, the image-plane moves that put its hot centre on
-    # a hot blob of the thermal frame (>= the frame's median + this many kelvin, within
-    # `blob_reach` x the view's width): a body that lost its object (25-95 px off at 11-14 steps on
-    # two development runs, docs/training.md "Rays from the thermal frames") can find it again,
-    # where the search's 3x3 grid of a few pixels cannot reach. 0: off.
-    search_blobs_k: float = 0.0
-    blob_reach: float = 0.5
     outside: float = 0.0              # probability of a time step outside the window, with a loss
     outside_keep: float = 0.9         # over the best-fitting fraction of its pixels only
 

@@ -23,8 +23,8 @@ from recon.dtg.losses import thermal_loss
 from recon.render import render, render_frame
 from recon.scene import Scene
 from recon.dtg.motion import apply_motion
-from recon.train.curriculum import (BodySearch, at_height, blob_offsets, frames_at, hold_at_depth, hold_at_height,
-                                    hot_blobs, hot_centre, level_offsets, place_bases, window_loss)
+from recon.train.curriculum import (BodySearch, at_height, frames_at, hold_at_depth, hold_at_height,
+                                    level_offsets, window_loss)
 from recon.train.trainer import Trainer
 
 
@@ -231,57 +231,3 @@ def test_holding_height_slides_a_body_along_the_ray_to_its_previous_height(scene
                     on_ray += 1       # (else a ray too level: the offset's horizontal part)
                     assert float((pixel(centre2 + lo) - pixel(centre2 + o)).abs().max()) < 1e-2
     assert moved >= 1 and on_ray >= 2
-
-
-def test_hot_blobs_are_whole_hot_regions_off_the_border():
-    """hot_blobs: centroids of the regions at least `hot` above the frame's median; a region cut by
-    the border, one smaller than 4 pixels and invalid pixels are left out."""
-    target = torch.zeros(40, 60)
-    target[10:15, 20:25] = 0.5                 # a 5x5 blob: centroid (22, 12)
-    target[30:33, 50:53] = 0.5                 # a 3x3 blob beside an invalid column
-    target[0:4, 40:44] = 0.5                   # cut by the top border
-    target[20, 5] = 0.5                        # one pixel
-    valid = torch.ones(40, 60, dtype=torch.bool)
-    valid[:, 52] = False                       # leaves the 3x3 blob 3x2: still >= 4 pixels
-    blobs = hot_blobs(target, valid, 0.2)
-    assert blobs == [(22.0, 12.0), (50.5, 31.0)], blobs
-    assert hot_blobs(target, valid, 0.6) == []
-
-
-def test_blob_search_finds_a_body_beyond_the_grid(scene):
-    """place_bases with blob_hot: a body whose new steps were guessed 20 px beside where it was
-    fitted (beyond the 3x3 grid's 6 + 3 px) is moved back onto its hot blob; the grid alone leaves
-    it off. Distances are of the body's hot centre (blob_offsets' weights) to the nearest blob."""
-    trainer, k, t, frames, cam, rows = mid_window(scene)
-    model, motion = trainer.model, trainer.model.motion
-    thermal = next(f for f in frames if f[0] == "thermal")
-    _, tcam, target, valid = thermal
-    hot = 10.0 / (trainer.scene.k_max - trainer.scene.k_min)
-    blobs = torch.tensor(hot_blobs(target, valid, hot))
-    assert len(blobs) >= 1
-
-    def off_blob(b: int) -> float:
-        """Pixels from body b's hot centre to the nearest blob in the thermal frame."""
-        centre = hot_centre(BodySearch(model, frames, t), b, thermal, hot)
-        if centre is None:
-            return float("inf")
-        pc = tcam.viewmat[:3, :3] @ centre + tcam.viewmat[:3, 3]
-        uv = torch.stack([tcam.fx * pc[0] / pc[2] + tcam.cx, tcam.fy * pc[1] / pc[2] + tcam.cy])
-        return float((blobs - uv).norm(dim=1).min())
-
-    saved = motion.translation.data.clone()
-    bodies = [b for b in range(motion.count) if off_blob(b) < 6]
-    assert bodies, "no body sits on its hot blob at this step"
-    push = 20 * float(cam.width) / 96            # 20 px at 96 wide, along the view's x axis
-    results = {}
-    for blob_hot in (0.0, hot):
-        motion.translation.data.copy_(saved)
-        with torch.no_grad():
-            for b in bodies:
-                depth = float(cam.viewmat[2, :3] @ (motion.pivots[b] + motion.translation[b, k]) + cam.viewmat[2, 3])
-                motion.translation[b, rows] += push * depth / cam.fx * cam.viewmat[0, :3]
-        place_bases(model, frames, t, "hi", blob_hot=blob_hot)
-        results[blob_hot] = [off_blob(b) for b in bodies]
-    motion.translation.data.copy_(saved)
-    assert max(results[hot]) < 6, results
-    assert min(results[0.0]) > 10, results

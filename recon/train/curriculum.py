@@ -367,68 +367,10 @@ def hold_at_height(search: BodySearch, b: int, knots: torch.Tensor, camera, cent
     return centre, float(rot[2] @ centre + tr[2])
 
 
-def hot_blobs(target: torch.Tensor, valid: torch.Tensor | None, hot: float, min_pixels: int = 4) -> list[tuple[float, float]]:
-    """Centroids (x, y) in pixels of the connected regions (8-neighbours) of a thermal frame
-    target (H, W) at least `hot` above its median over valid pixels, of min_pixels or more and
-    not touching the frame's border (a cut-off object's centroid is not its centre)."""
-    import cv2
-    import numpy as np
-
-    ok = valid if valid is not None else torch.ones_like(target, dtype=torch.bool)
-    if not bool(ok.any()):
-        return []
-    mask = ((target >= target[ok].median() + hot) & ok).numpy().astype(np.uint8)
-    count, _, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    h, w = mask.shape
-    out = []
-    for i in range(1, count):
-        x, y, bw, bh, area = (int(v) for v in stats[i])
-        if area >= min_pixels and x > 0 and y > 0 and x + bw < w and y + bh < h:
-            out.append((float(centroids[i][0]), float(centroids[i][1])))
-    return out
-
-
-def hot_centre(search: BodySearch, b: int, frame: tuple, hot: float) -> torch.Tensor | None:
-    """(3,) body b's hot centre at the search's time: its Gaussians in the thermal render inputs
-    weighted by opacity x how far their temperature is above the thermal frame's (modality,
-    camera, target, valid) median + hot. None when none of them is that hot."""
-    _, _, target, valid = frame
-    inp, idx = search.inputs["thermal"], search.rows(b)
-    ok = valid if valid is not None else torch.ones_like(target, dtype=torch.bool)
-    if not bool(ok.any()):
-        return None
-    w = inp["opacities"][idx] * (inp["features"][idx, 0, 0] - (target[ok].median() + hot)).clamp_min(0)
-    if float(w.sum()) <= 1e-6:
-        return None
-    return (inp["means"][idx] * w[:, None]).sum(0) / w.sum()
-
-
-def blob_offsets(search: BodySearch, b: int, frame: tuple, hot: float, reach: float) -> list[torch.Tensor]:
-    """World offsets (3,) that move body b's hot centre (hot_centre) onto each hot blob of the
-    thermal frame (modality, camera, target, valid) within reach x the frame's width, at the
-    centre's depth (image-plane moves)."""
-    _, cam, target, valid = frame
-    centre = hot_centre(search, b, frame, hot)
-    if centre is None:
-        return []
-    rot, tr = cam.viewmat[:3, :3], cam.viewmat[:3, 3]
-    pc = rot @ centre + tr
-    if float(pc[2]) <= 1e-3:
-        return []
-    u, v = float(cam.fx * pc[0] / pc[2] + cam.cx), float(cam.fy * pc[1] / pc[2] + cam.cy)
-    depth = float(pc[2])
-    out = []
-    for x, y in hot_blobs(target, valid, hot):
-        du, dv = x - u, y - v
-        if 1.0 < (du * du + dv * dv) ** 0.5 <= reach * cam.width:
-            out.append((du * depth / cam.fx) * rot[0] + (dv * depth / cam.fy) * rot[1])
-    return out
-
-
 @torch.no_grad()
 def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.0,
                 pixel_steps: tuple[float, ...] = (6.0, 3.0), hold_depth: bool = False,
-                up: torch.Tensor | None = None, blob_hot: float = 0.0, blob_reach: float = 0.5) -> None:
+                up: torch.Tensor | None = None) -> None:
     """Where each motion basis is at a time step the window just took in: a coarse search before
     the gradient refines it. The knots of the new step (and beyond, on `side` 'lo' or 'hi') start
     at constant velocity; for each basis with Gaussians near the view, offsets of (pixel_steps)
@@ -439,9 +381,7 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
     constant-velocity guess missed by a few pixels. hold_depth: before the search each body slides
     along the first frame's ray to the depth it had at the previous step (hold_at_depth). up (3,):
     instead, each body slides to the height it had at the previous step and the search keeps that
-    height (hold_at_height, level_offsets). blob_hot > 0 (normalised temperature): first, moves
-    onto the thermal frame's hot blobs are tried too (blob_offsets), kept only where they lower the
-    same loss."""
+    height (hold_at_height, level_offsets)."""
     motion = model.motion
     if motion is None or not frames or motion.count == 0:
         return
@@ -486,19 +426,6 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
                     centre, depth = hold_at_height(search, b, rows, cam, centre, prev, gate[sel], w, up)
                 else:
                     centre, depth = hold_at_depth(search, b, rows, cam, centre, depth, prev, gate[sel], w)
-        thermal = next((f for f in frames if f[0] == "thermal"), None)
-        if blob_hot > 0 and thermal is not None and "thermal" in search.inputs:
-            group = blob_offsets(search, b, thermal, blob_hot, blob_reach)
-            if group:
-                plans = search.plan(b, rows, group)
-                best, best_loss = None, search.loss(b, rows, torch.zeros(3), plans)
-                for offset in group:
-                    loss = search.loss(b, rows, offset, plans)
-                    if loss < best_loss - 1e-6:
-                        best, best_loss = offset, loss
-                if best is not None:
-                    search.move(b, rows, best)
-                    centre = centre + best
         steps = [max(s, 0.5 ** i * 0.5 * speed) for i, s in enumerate(pixel_steps)]
         for s in steps:
             group = [(i * s * depth / cam.fx) * rot[0] + (j * s * depth / cam.fy) * rot[1]

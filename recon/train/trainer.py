@@ -307,9 +307,7 @@ class Trainer:
                 for side, when in taken_in:
                     place_bases(self.model, frames_at(self.scene, self.cfg.model.modalities, when), when, side,
                                 hold_depth=self.cfg.curriculum.hold_depth,
-                                up=self.up if self.cfg.curriculum.level else None,
-                                blob_hot=self.cfg.curriculum.search_blobs_k / (self.scene.k_max - self.scene.k_min),
-                                blob_reach=self.cfg.curriculum.blob_reach)
+                                up=self.up if self.cfg.curriculum.level else None)
         if self.held is not None:
             t = self.train_times[int(torch.randint(len(self.train_times), (1,), generator=self.gen))]
         else:
