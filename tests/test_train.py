@@ -65,6 +65,32 @@ def test_routing_stays_shared_until_the_schedule_allows(scene):
     assert torch.equal(tr.model.gaussians["route_logits"].detach(), frozen)   # no change once frozen
 
 
+def test_frozen_routing_masks_are_recomputed_when_the_logits_change(scene):
+    """Once routing is frozen the trainer reuses its inference masks between iterations: they must
+    still equal fresh ones after the logits are changed in place or replaced (densification, a
+    rollback), and before that stay the same tensors."""
+    from recon.render import inference_masks
+    tr = Trainer(small_cfg(iterations=90), scene, log=lambda _: None)
+    tr.progress_fn = lambda _: 0.99
+    assert routing.phase(tr.cfg.routing, tr.progress()) == "frozen"
+    tr.step()
+    first = tr._frozen_masks()
+    tr.step()
+    assert tr._frozen_masks() is first
+    def same(a, b):
+        return all(torch.equal(a[m], b[m]) for m in a)
+    assert same(first, inference_masks(tr.model))
+    logits = tr.model.gaussians["route_logits"]
+    with torch.no_grad():
+        logits[: logits.shape[0] // 2] = logits[: logits.shape[0] // 2].flip(1)   # roles swap in place
+    assert not same(first, inference_masks(tr.model))
+    flipped = tr._frozen_masks()
+    assert same(flipped, inference_masks(tr.model))
+    tr.model.gaussians["route_logits"] = torch.nn.Parameter(logits.detach().roll(1, 1))   # replaced
+    assert not same(flipped, inference_masks(tr.model))
+    assert same(tr._frozen_masks(), inference_masks(tr.model))
+
+
 def test_every_per_gaussian_tensor_stays_aligned_after_densify(scene):
     tr = Trainer(small_cfg(iterations=60), scene, log=lambda _: None)
     start = tr.model.num_gaussians
