@@ -40,33 +40,3 @@ def test_lean_adam_equals_torch_fused_adam():
     resumed.load_state_dict(lean.state_dict())
     assert all(torch.equal(s["exp_avg"], lean.state[p]["exp_avg"])
                for s, p in zip(resumed.state.values(), b))
-
-
-def test_sparse_row_gradients_equal_dense_ones_and_step_alike():
-    """sparse_rows (recon/dtg/losses.py): a term on repeated rows gives autograd a sparse gradient
-    that, added to a dense one from another gather of the same tensor, equals gather_rows' dense
-    gradient bit for bit (both sum in index order); alone it stays sparse, and LeanAdam steps it as
-    the dense one."""
-    from recon.dtg.losses import gather_rows, sparse_rows
-    gen = torch.Generator().manual_seed(3)
-    rows = torch.randint(50, (40, 9), generator=gen)           # repeats: rows are neighbours of many
-    other = torch.randperm(50, generator=gen)[:20]
-    weight = torch.randn(40, 9, 4, generator=gen)
-
-    def grad(gather, with_other: bool) -> torch.Tensor:
-        x = torch.nn.Parameter(torch.randn(50, 4, generator=torch.Generator().manual_seed(4)))
-        loss = (gather(x, rows) * weight).pow(2).sum()
-        if with_other:
-            loss = loss + x.index_select(0, other).pow(3).sum()
-        loss.backward()
-        return x.grad
-
-    assert grad(sparse_rows, True).layout == torch.strided
-    assert torch.equal(grad(sparse_rows, True), grad(gather_rows, True))
-    alone = grad(sparse_rows, False)
-    assert alone.is_sparse and torch.equal(alone.to_dense(), grad(gather_rows, False))
-    x, y = (torch.nn.Parameter(torch.ones(50, 4)) for _ in range(2))
-    x.grad, y.grad = alone.clone(), alone.to_dense()
-    for p in (x, y):
-        LeanAdam([{"params": [p], "lr": 0.1}], lr=0.0, eps=1e-15, fused=True).step()
-    assert torch.equal(x, y) and not torch.equal(x, torch.ones(50, 4))

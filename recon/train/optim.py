@@ -76,8 +76,6 @@ class LeanAdam(torch.optim.Adam):
             for p in group["params"]:
                 if p.grad is None:
                     continue
-                if p.grad.is_sparse:       # only a sparse_rows term reached it (recon/dtg/losses.py)
-                    p.grad = p.grad.to_dense()
                 state = self.state[p]
                 if not state:
                     state["step"] = torch.zeros((), dtype=torch.float32)
