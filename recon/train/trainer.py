@@ -271,9 +271,9 @@ class Trainer:
 
     def _embedding_smoothness(self, modality: str, first: bool, stats: dict):
         """The k-NN smoothness of the Gaussian embeddings that this stage's network reads (a shared
-        network's: in the first stage only). In the stage that uses them, their gradient is one
-        dense (N, D) tensor and one Adam update per iteration: in another stage it was a second
-        of each (~3 ms at 80k Gaussians, D = 32)."""
+        network's: in the first stage only). There its gradient joins the network's before the
+        stage's optimizer step, so Adam updates the (N, D) embedding once per iteration, not once
+        per stage (~1 ms at 80k Gaussians, D = 32)."""
         stage = self.model.stage_of(modality)
         key = "embedding" if stage == "shared" else f"embedding_{stage}"
         if (stage is None or key not in self.model.gaussians or self.cfg.loss.embedding_smoothness <= 0
