@@ -44,11 +44,16 @@ def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
         2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], 1).view(-1, 3, 3)
 
 
+def embedding_key(stage: str) -> str:
+    """The per-Gaussian tensor a deformation stage ('shared', 'rgb' or 'thermal') reads."""
+    return "embedding" if stage == "shared" else f"embedding_{stage}"
+
+
 def embedding_keys(cfg: ModelConfig) -> list[str]:
     if cfg.deformation == "shared":
-        return ["embedding"]
+        return [embedding_key("shared")]
     if cfg.deformation == "progressive":     # a stage with nothing to predict has no network
-        return [f"embedding_{m}" for m in cfg.modalities
+        return [embedding_key(m) for m in cfg.modalities
                 if m in cfg.deform_geometry or m in cfg.deform_opacity or m in cfg.deform_features]
     return []
 

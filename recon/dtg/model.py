@@ -18,7 +18,7 @@ from torch import nn
 
 from recon.config import ModelConfig
 from recon.dtg.deformation import DeformationNet, geometry_outputs, modality_outputs
-from recon.dtg.gaussians import embedding_keys, sh_coeffs
+from recon.dtg.gaussians import embedding_key, embedding_keys, sh_coeffs
 from recon.dtg.motion import MotionBases, apply_motion
 from recon.dtg.time_embedding import TimeEmbedding, lerp_rows
 
@@ -80,7 +80,7 @@ class DTGModel(nn.Module):
         rows (R,): only these Gaussians' are computed, the others' are zero."""
         if stage not in self.deformers:
             return {}
-        key = "embedding" if stage == "shared" else f"embedding_{stage}"
+        key = embedding_key(stage)
         e_t = self.time_embedding(t, progress)
         if rows is None:
             return self.deformers[stage](e_t, self.gaussians[key])
@@ -132,7 +132,7 @@ class DTGModel(nn.Module):
         if stage is None or stage not in self.deformers:    # no network moves geometry (bases may)
             moved = torch.zeros_like(self.gaussians["means"][index])
         else:
-            key = "embedding" if stage == "shared" else f"embedding_{stage}"
+            key = embedding_key(stage)
             res = self.deformers[stage](self.time_embedding(t, progress), self.gaussians[key][index])
             moved = res["means"]
             gate = self.geometry_gate(stage)

@@ -18,6 +18,7 @@ import torch
 from recon.alloc import retain_freed_memory
 from recon.config import TrainConfig, config_from_dict, config_to_dict
 from recon.dtg import routing
+from recon.dtg.gaussians import embedding_key
 from recon.dtg.losses import EmbeddingSmoothness, rgb_loss, thermal_loss, trimmed_l1
 from recon.dtg.model import DTGModel, check_params, time_rows
 from recon.dtg.priors import MotionPriors
@@ -275,7 +276,7 @@ class Trainer:
         stage's optimizer step, so Adam updates the (N, D) embedding once per iteration, not once
         per stage (~1 ms at 80k Gaussians, D = 32)."""
         stage = self.model.stage_of(modality)
-        key = "embedding" if stage == "shared" else f"embedding_{stage}"
+        key = embedding_key(stage)
         if (stage is None or key not in self.model.gaussians or self.cfg.loss.embedding_smoothness <= 0
                 or (stage == "shared" and not first)):
             return 0.0
