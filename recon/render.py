@@ -28,27 +28,30 @@ def inference_masks(model: DTGModel) -> dict[str, torch.Tensor] | None:
 
 
 def pixel_boxes(camera: Camera, means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor,
-                opacities: torch.Tensor, threads: int | None = None
+                opacities: torch.Tensor, threads: int | None = None, cull_beside: float | None = None
                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Where Gaussians (means (N, 3), quats, log_scales, opacities (N,)) can draw in camera: the
     rasterizer's own opacity-aware footprint plus a pixel, as boxes lo (N, 2), hi (N, 2) in pixels,
-    and drawn (N,) bool (what its projection culls draws nothing)."""
+    and drawn (N,) bool (what its projection culls draws nothing; cull_beside: the rasterizer's)."""
+    intr = intrinsics(*camera.args()[1:], window=camera.window, cull_beside=cull_beside)
     means2d, _, _, radii, _ = project(means, quats, log_scales, opacities, torch.ones(means.shape[0], 1),
-                                      camera.viewmat.float(), intrinsics(*camera.args()[1:], window=camera.window),
-                                      None, torch.get_num_threads() if threads is None else threads)
+                                      camera.viewmat.float(), intr, None,
+                                      torch.get_num_threads() if threads is None else threads)
     r = (radii + 1).float()[:, None]
     return means2d - r, means2d + r, radii > 0
 
 
-def in_view(camera: Camera, threads: int | None = None):
+def in_view(camera: Camera, threads: int | None = None, cull_beside: float | None = None):
     """geometry {means (N,3), quats, log_scales}, margin -> (R,) indices of the Gaussians the
     rasterizer may draw in this camera (its projection's culling at full opacity, the widest
-    footprint: a superset of what any opacity draws); with a margin (a fraction, see
-    `PinholeCamera.widened`) in the camera widened by it instead."""
+    footprint: a superset of what any opacity draws; cull_beside: the render's off-view cull);
+    with a margin (a fraction, see `PinholeCamera.widened`) in the camera widened by it instead,
+    and without the cull (geometry that a network may still move: any Gaussian reaching into it)."""
     def rows(geo: dict[str, torch.Tensor], margin: float | None = None) -> torch.Tensor:
         cam = camera if margin is None else camera.widened(margin)
         ones = torch.ones(geo["means"].shape[0])
-        drawn = pixel_boxes(cam, geo["means"], geo["quats"], geo["log_scales"], ones, threads)[2]
+        cull = cull_beside if margin is None else None
+        drawn = pixel_boxes(cam, geo["means"], geo["quats"], geo["log_scales"], ones, threads, cull)[2]
         return torch.nonzero(drawn).view(-1)
     return rows
 
@@ -63,7 +66,7 @@ def render(model: DTGModel, modality: str, t: float, camera: Camera, progress: f
     threads: rasterizer threads (None: torch's); frozen (N,) bool: Gaussians this render may not
     train (their parameters are seen detached)."""
     g = model.render_inputs(modality, t, progress, mask=mask, rgb_geometry=rgb_geometry,
-                            in_view=in_view(camera, threads))
+                            in_view=in_view(camera, threads, model.cfg.cull_off_view))
     if frozen is not None:
         g = {**g, **{k: torch.where(frozen.view(-1, *[1] * (g[k].dim() - 1)), g[k].detach(), g[k])
                      for k in ("means", "quats", "log_scales", "opacities", "features")}}

@@ -4,6 +4,8 @@ Gaussian, and so are the gradients it gives."""
 import torch
 
 from recon import render as rendering
+from recon.splat import rasterization
+from recon.splat.cameras import PinholeCamera
 from recon.train.trainer import Trainer
 from tests.test_train import small_cfg, tiny
 
@@ -16,7 +18,7 @@ def narrow_and_wide(model, t, camera, monkeypatch):
         g = model.gaussians["embedding_thermal"]
         g.grad = None
         if not narrow:
-            monkeypatch.setattr(rendering, "in_view", lambda camera, threads=None: None)
+            monkeypatch.setattr(rendering, "in_view", lambda *args, **kwargs: None)
         image, _, geo = rendering.render(model, "thermal", t, camera)
         monkeypatch.undo()
         (image * torch.linspace(0, 1, image.numel()).view_as(image)).sum().backward()
@@ -152,3 +154,20 @@ def test_network_skips_gaussians_the_frozen_routing_removes(tmp_path_factory):
     assert torch.allclose(a, b, atol=1e-6), (a - b).abs().max()
     for x, y in zip(ga, gb):
         assert torch.allclose(x, y, atol=1e-6, rtol=1e-4), (x - y).abs().max()
+
+
+def test_in_view_leaves_out_what_the_off_view_cull_drops():
+    """A Gaussian whose centre lies far beside the view but whose footprint reaches into it: the
+    render culls it (cull_beside), so in_view with the same cull leaves it out (its network would
+    only run for nothing); without the cull it is listed, as the projection alone draws it."""
+    camera = PinholeCamera(torch.eye(4), 50.0, 50.0, 20.0, 15.0, 40, 30)
+    # at depth 2: x = 2.2 projects to 20 + 50 * 1.1 = 75 px, 35 px beyond the right edge (> 0.5 x 40)
+    means = torch.tensor([[0.0, 0.0, 2.0], [2.2, 0.0, 2.0]])
+    geo = {"means": means, "quats": torch.tensor([[1.0, 0, 0, 0]] * 2),
+           "log_scales": torch.log(torch.tensor([[0.05] * 3, [1.0] * 3]))}
+    assert rendering.in_view(camera)(geo).tolist() == [0, 1]
+    assert rendering.in_view(camera, cull_beside=0.5)(geo).tolist() == [0]
+    drawn = rasterization(geo["means"], geo["quats"], geo["log_scales"], torch.ones(2), torch.ones(2, 1),
+                                    camera.viewmat, camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
+                                    camera.height, cull_beside=0.5).radii > 0
+    assert drawn.tolist() == [True, False]
