@@ -34,6 +34,6 @@ def test_gate_scales_the_thermal_residuals_and_its_price_closes_idle_gates(tmp_p
         assert free[1::2].abs().max() > 0
         idx = torch.arange(n)
         assert torch.allclose(model.means_at("thermal", view.time, 1.0, idx), geo["means"], atol=1e-6)
-        # the RGB render never takes the thermal residuals
+        # the RGB render never takes the thermal residuals (dtg has no F_rgb: it takes none)
         rgb = model.render_inputs("rgb", view.time)
-        assert rgb["geometry_residuals"]["means"].abs().max() == 0
+        assert rgb["geometry_residuals"] == {}

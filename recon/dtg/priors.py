@@ -137,7 +137,7 @@ class MotionPriors:
             moved = ((deformed["means"][idx] - canonical["means"][idx].detach()) / self.extent).norm(dim=-1).mean()
             total = total + cfg.sparsity * moved
             stats["sparse"] = float(moved.detach())
-        if cfg.residual_sparsity > 0 and "geometry_residuals" in deformed:
+        if cfg.residual_sparsity > 0 and "means" in deformed.get("geometry_residuals", {}):
             residual = (deformed["geometry_residuals"]["means"][idx] / self.extent).norm(dim=-1).mean()
             total = total + cfg.residual_sparsity * residual
             stats["residual"] = float(residual.detach())
