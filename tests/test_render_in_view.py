@@ -168,6 +168,6 @@ def test_in_view_leaves_out_what_the_off_view_cull_drops():
     assert rendering.in_view(camera)(geo).tolist() == [0, 1]
     assert rendering.in_view(camera, cull_beside=0.5)(geo).tolist() == [0]
     drawn = rasterization(geo["means"], geo["quats"], geo["log_scales"], torch.ones(2), torch.ones(2, 1),
-                                    camera.viewmat, camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
-                                    camera.height, cull_beside=0.5).radii > 0
+                          camera.viewmat, camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
+                          camera.height, cull_beside=0.5).radii > 0
     assert drawn.tolist() == [True, False]
