@@ -218,14 +218,6 @@ class PriorConfig:
     # 2.09 outside; on the never-tuned seeds inside 2.43 -> 3.06 K (7 of 8 worse), outside 1.93 ->
     # 1.76 K (bench/results/level; docs/training.md, "Moving bodies keep their height"): off.
     level_paths: float = 0.0
-    # Optical-flow tracks of the hot pixels near each body in the thermal training frames
-    # (recon/train/tracks.py): the weight of the Huber pixel distance between each tracked point,
-    # moved by its body, and its
-    # track at the window's steps; a body taken in at a new step starts where its tracks say
-    # instead of the image-plane search. 0: off.
-    flow_tracks: float = 0.0
-    flow_tracks_fb: float = 1.0      # px: a track ends where forward and backward flow disagree more
-    flow_tracks_delta: float = 2.0   # px: the Huber loss is quadratic within it
     max_aspect: float = 5.0
     knn: int = 8
     knn_falloff: float = 2000.0      # w = exp(-falloff d^2 / E^2), as the embedding smoothness

@@ -118,16 +118,10 @@ def body_transforms(bases: "MotionBases", t: float) -> torch.Tensor:
     about the pivot, then translation), an orientation to L q'. R is the lower 3x3 block of
     L(q) R(conj(q)) (p -> q p conj(q)): a few autograd nodes, where Rodrigues' formula took 34."""
     rot, trans = bases.at(t)
-    return rigid_transforms(rot, trans, bases.pivots)
-
-
-def rigid_transforms(rot: torch.Tensor, trans: torch.Tensor, pivots: torch.Tensor) -> torch.Tensor:
-    """(P, 28) packed as body_transforms for rotations rot (P, 3) axis-angle about pivots (P, 3),
-    then translations trans (P, 3)."""
-    q = axis_angle_to_quat(rot)                                       # (P, 4)
+    q = axis_angle_to_quat(rot)                                       # (B, 4)
     left = quat_matrix(q, _LEFT)
-    r = (left @ quat_matrix(q, _RIGHT_CONJ))[:, 1:, 1:]               # (P, 3, 3)
-    c = pivots + trans - (r @ pivots[:, :, None])[:, :, 0]
+    r = (left @ quat_matrix(q, _RIGHT_CONJ))[:, 1:, 1:]               # (B, 3, 3)
+    c = bases.pivots + trans - (r @ bases.pivots[:, :, None])[:, :, 0]
     return torch.cat([r.flatten(1), c, left.flatten(1)], 1)
 
 

@@ -19,7 +19,6 @@ import torch
 from recon.dtg.motion import apply_motion
 from recon.render import draw, inference_masks, pixel_boxes, render_frame
 from recon.train.resolution import downscale
-from recon.train.tracks import track_offset
 
 
 def window_bounds(iteration: int, n_times: int, center: float, start_steps: int, grow_every: float,
@@ -371,7 +370,7 @@ def hold_at_height(search: BodySearch, b: int, knots: torch.Tensor, camera, cent
 @torch.no_grad()
 def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.0,
                 pixel_steps: tuple[float, ...] = (6.0, 3.0), hold_depth: bool = False,
-                up: torch.Tensor | None = None, tracks=None) -> None:
+                up: torch.Tensor | None = None) -> None:
     """Where each motion basis is at a time step the window just took in: a coarse search before
     the gradient refines it. The knots of the new step (and beyond, on `side` 'lo' or 'hi') start
     at constant velocity; for each basis with Gaussians near the view, offsets of (pixel_steps)
@@ -382,8 +381,7 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
     constant-velocity guess missed by a few pixels. hold_depth: before the search each body slides
     along the first frame's ray to the depth it had at the previous step (hold_at_depth). up (3,):
     instead, each body slides to the height it had at the previous step and the search keeps that
-    height (hold_at_height, level_offsets). tracks (recon/train/tracks.py): a body with enough valid
-    flow tracks at t moves across its tracked frame's image plane onto them instead of the search."""
+    height (hold_at_height, level_offsets)."""
     motion = model.motion
     if motion is None or not frames or motion.count == 0:
         return
@@ -399,10 +397,6 @@ def place_bases(model, frames, t: float, side: str, min_opacity_mass: float = 1.
     rot = cam.viewmat[:3, :3]
     search = BodySearch(model, frames, t)
     for b in range(motion.count):
-        shift = track_offset(motion, tracks, b, t) if tracks is not None else None
-        if shift is not None:       # the tracks say where it is: no search on an immature shape
-            search.move(b, rows, shift)
-            continue
         sel = basis == b + 1
         if float(weight[sel].sum()) < min_opacity_mass:
             continue

@@ -29,7 +29,6 @@ from recon.train import timeline
 from recon.train.checkpoint import read_checkpoint, write_checkpoint
 from recon.train.resolution import downscale, factor_at, random_crop
 from recon.train.curriculum import TimeWindow, continue_beyond, frames_at, place_bases
-from recon.train.tracks import body_tracks, track_loss
 from recon.train.guard import DivergenceGuard, Event, TrainingDiverged, median_motion, nonfinite_parameter
 from recon.train.holdout import holdout_psnr, holdout_views
 from recon.train.anchors import anchor_loss
@@ -104,7 +103,6 @@ class Trainer:
         self.warmup = warm_up_iterations(cfg) if self.held is not None else 0
         self.window_start = self.warmup
         self.window = TimeWindow(cfg.curriculum, scene.times, cfg.iterations - self.warmup)
-        self.tracks = self._flow_tracks() if self.held is None else None
         if self.cfg.stop.converge and not self.validation_times:
             self.schedule.release("no held-out time steps to judge convergence (fewer than "
                                   f"{cfg.stop.validation_every // 2 + 1}): the nominal schedule")
@@ -297,12 +295,6 @@ class Trainer:
             climb = model.motion.climb(self.up, self.extent)
             reg = reg + self.cfg.priors.level_paths * climb
             stats["basis_climb"] = float(climb.detach())
-        if self.tracks is not None and model.motion is not None:
-            lo, hi = self.window.span()
-            steps = torch.tensor([k for k, t in enumerate(self.tracks.times) if lo <= t <= hi], dtype=torch.long)
-            track = track_loss(model.motion, self.tracks, steps, self.cfg.priors.flow_tracks_delta)
-            reg = reg + self.cfg.priors.flow_tracks * track
-            stats["flow_tracks"] = float(track.detach())
         if self.cfg.model.deformation != "none" and cfg.time_smoothness > 0:
             tv = model.time_embedding.temporal_smoothness()
             reg = reg + cfg.time_smoothness * tv
@@ -327,7 +319,7 @@ class Trainer:
                 for side, when in taken_in:
                     place_bases(self.model, frames_at(self.scene, self.cfg.model.modalities, when), when, side,
                                 hold_depth=self.cfg.curriculum.hold_depth,
-                                up=self.up if self.cfg.curriculum.level else None, tracks=self.tracks)
+                                up=self.up if self.cfg.curriculum.level else None)
         if self.held is not None:
             t = self.train_times[int(torch.randint(len(self.train_times), (1,), generator=self.gen))]
         else:
@@ -394,20 +386,10 @@ class Trainer:
         self.cfg.curriculum.center = found.center
         self.window_start = self.iteration
         self.window = TimeWindow(self.cfg.curriculum, self.scene.times, self.cfg.iterations - self.iteration)
-        self.tracks = self._flow_tracks()
         self._take_snapshot()            # a rollback must not return to a model without its bodies
         self.log(f"iteration {self.iteration}: {len(found.members)} moving bodies from {len(index)} points "
                  f"({', '.join(str(len(mm)) for mm in found.members)}), seen at t = {found.center:.3f}: "
                  f"motion is learned outwards from there")
-
-    def _flow_tracks(self):
-        """The bodies' flow tracks (recon/train/tracks.py), or None when PriorConfig.flow_tracks is off."""
-        pr = self.cfg.priors
-        if pr.flow_tracks <= 0 or self.model.motion is None:
-            return None
-        center = self.cfg.curriculum.center if self.cfg.curriculum.center >= 0 else 0.5
-        return body_tracks(self.scene, self.model, center, fb=pr.flow_tracks_fb,
-                           gen=torch.Generator().manual_seed(self.cfg.seed), log=self.log)
 
     def _set_motion(self, motion: MotionBases) -> None:
         self.model.motion = motion
