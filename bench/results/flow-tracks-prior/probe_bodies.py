@@ -1,0 +1,35 @@
+"""Why are the bodies' members off the objects? Per moving object and per instant the simulator
+recorded points at: initial points inside it (1.2 cm) / of those, flagged as seeing the scene change
+(changing_points) / of those, matched to an instant by observed_time (the candidates for a body).
+Development datasets only (the simulator's objects are read):
+
+    python bench/results/flow-tracks-prior/probe_bodies.py DATA... > probe_bodies.txt"""
+import sys, json
+from pathlib import Path
+import numpy as np, torch
+ROOT = Path(__file__).resolve().parents[3]; sys.path.insert(0, str(ROOT)); sys.path.insert(0, str(ROOT / 'bench'))
+from oracle import Oracle, SAMPLES
+from recon.config import make_config
+from recon.data import load_dataset
+from recon.scene import Scene
+from recon.train.initial import initial_points
+from recon.dtg.points import changing_points, observed_time
+torch.set_grad_enabled(False)
+for name in sys.argv[1:]:
+    d = Path(name); meta = json.loads((d / 'sim_meta.json').read_text())['config']
+    o = Oracle(meta['variant'], meta['seed'])
+    cfg = make_config('dtg'); m = cfg.model
+    scene = Scene(load_dataset(d))
+    pts, rgb = initial_points(cfg, scene, torch.Generator().manual_seed(cfg.seed), log=lambda *a: None)
+    flagged = changing_points(scene, pts, m.split_rgb, m.split_kelvin, m.split_fraction)
+    t_seen, matched = observed_time(scene, pts[flagged], rgb[flagged])
+    p = pts.numpy()
+    print(d.name, 'points', len(p), 'flagged', int(flagged.sum()), 'matched', int(matched.sum()), f't_seen {t_seen:.3f}')
+    for k in range(len(o.objects)):
+        row = []
+        for i, t in enumerate(np.linspace(0, 1, SAMPLES)):
+            on = o.contains(k, t, p, 0.012)
+            fl = on & flagged.numpy()
+            mt = np.zeros(len(p), bool); mt[np.nonzero(flagged.numpy())[0][matched.numpy()]] = True
+            row.append(f't{t:.2f}:{on.sum()}/{fl.sum()}/{(on & mt).sum()}')
+        print('   obj', k, type(o.objects[k].shape).__name__, ' '.join(row))
