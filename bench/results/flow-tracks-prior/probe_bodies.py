@@ -1,7 +1,10 @@
 """Why are the bodies' members off the objects? Per moving object and per instant the simulator
 recorded points at: initial points inside it (1.2 cm) / of those, flagged as seeing the scene change
 (changing_points) / of those, matched to an instant by observed_time (the candidates for a body).
-Development datasets only (the simulator's objects are read):
+Then, per way of flagging (changing_points as dtg's defaults, transient_points as body discovery),
+the candidates observed_time matches to its instant t_seen: how many lie on a moving object at
+t_seen (1.2 cm), and on one at any of the simulator's 8 recorded instants. Development datasets
+only (the simulator's objects are read):
 
     python bench/results/flow-tracks-prior/probe_bodies.py DATA... > probe_bodies.txt"""
 import sys, json
@@ -13,7 +16,7 @@ from recon.config import make_config
 from recon.data import load_dataset
 from recon.scene import Scene
 from recon.train.initial import initial_points
-from recon.dtg.points import changing_points, observed_time
+from recon.dtg.points import changing_points, observed_time, transient_points
 torch.set_grad_enabled(False)
 for name in sys.argv[1:]:
     d = Path(name); meta = json.loads((d / 'sim_meta.json').read_text())['config']
@@ -33,3 +36,15 @@ for name in sys.argv[1:]:
             mt = np.zeros(len(p), bool); mt[np.nonzero(flagged.numpy())[0][matched.numpy()]] = True
             row.append(f't{t:.2f}:{on.sum()}/{fl.sum()}/{(on & mt).sum()}')
         print('   obj', k, type(o.objects[k].shape).__name__, ' '.join(row))
+    for label, cand in (('changing', changing_points(scene, pts, m.split_rgb, m.split_kelvin, m.split_fraction)),
+                        ('transient', transient_points(scene, pts, rgb))):
+        t_seen, matched = observed_time(scene, pts[cand], rgb[cand])
+        idx = np.nonzero(cand.numpy())[0][matched.numpy()]
+        on = np.zeros(len(idx), bool)
+        for k in range(len(o.objects)):
+            on |= o.contains(k, t_seen, p[idx], 0.012)
+        anyt = np.zeros(len(idx), bool)
+        for k in range(len(o.objects)):
+            for t in np.linspace(0, 1, 8):
+                anyt |= o.contains(k, t, p[idx], 0.012)
+        print(f'{d.name:22s} {label:9s} t_seen {t_seen:.3f} candidates {len(idx):4d} on an object at t_seen {on.sum():3d} on one at some instant {anyt.sum():3d}')
