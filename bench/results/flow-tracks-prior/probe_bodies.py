@@ -6,7 +6,11 @@ the candidates observed_time matches to its instant t_seen: how many lie on a mo
 t_seen (1.2 cm), and on one at any of the simulator's 8 recorded instants. Development datasets
 only (the simulator's objects are read):
 
-    python bench/results/flow-tracks-prior/probe_bodies.py DATA... > probe_bodies.txt"""
+    python bench/results/flow-tracks-prior/probe_bodies.py DATA... > probe_bodies.txt
+
+At a commit that has ModelConfig.body_hot_kelvin (members on hot pixels only: tried, removed after)
+it also prints, per body, members inside a moving object at t_c (1.2 cm) / members, without and
+with the switch at 10 K (-> probe_hot.txt)."""
 import sys, json
 from pathlib import Path
 import numpy as np, torch
@@ -15,7 +19,7 @@ from oracle import Oracle, SAMPLES
 from recon.config import make_config
 from recon.data import load_dataset
 from recon.scene import Scene
-from recon.train.initial import initial_points
+from recon.train.initial import initial_model, initial_points
 from recon.dtg.points import changing_points, observed_time, transient_points
 torch.set_grad_enabled(False)
 for name in sys.argv[1:]:
@@ -48,3 +52,20 @@ for name in sys.argv[1:]:
             for t in np.linspace(0, 1, 8):
                 anyt |= o.contains(k, t, p[idx], 0.012)
         print(f'{d.name:22s} {label:9s} t_seen {t_seen:.3f} candidates {len(idx):4d} on an object at t_seen {on.sum():3d} on one at some instant {anyt.sum():3d}')
+    if not hasattr(make_config('dtg').model, 'body_hot_kelvin'):
+        continue
+    out = []
+    for hotk in (0.0, 10.0):
+        cfg = make_config('dtg'); cfg.model.body_hot_kelvin = hotk
+        logs = []
+        model, _ = initial_model(cfg, scene, torch.Generator().manual_seed(cfg.seed), logs.append)
+        b = model.gaussians['motion_basis'].long().numpy(); x = model.gaussians['means'].numpy()
+        tc = cfg.curriculum.center
+        res = []
+        for k in range(1, b.max() + 1):
+            on = np.zeros(int((b == k).sum()), bool)
+            for j in range(len(o.objects)):
+                on |= o.contains(j, tc, x[b == k], 0.012)
+            res.append(f'{on.sum()}/{len(on)}')
+        out.append(f'hot {hotk:g}: ' + ' '.join(res))
+    print(d.name, f't_c {tc:.3f}', ' | '.join(out), [line for line in logs if 'hot bodies' in line])
