@@ -96,11 +96,6 @@ class ModelConfig:
     # seeds inside 3.81 -> 3.62 K, outside 2.17 -> 2.34 K (bench/results/family-motion2): off
     basis_gate_static: float | None = None
     basis_static_share: float = 0.6
-    # A body some of whose members (at least 3) lie on hot pixels of the thermal frames at the
-    # instant the bodies were seen (this many kelvin above each frame's median) keeps only those:
-    # its other members, mostly floor under the object's path, stay static (points.hot_points).
-    # 0: off.
-    body_hot_kelvin: float = 0.0
     # With bodies, the geometry residuals of a network (F_th in `dtg`) move only the bodies'
     # Gaussians (times their gate): the static scene keeps one place in every modality (no drift),
     # and the network runs on the bodies and the static Gaussians in view only (-1.4 ms per

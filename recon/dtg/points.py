@@ -94,22 +94,6 @@ def initial_temperatures(scene: Scene, points: torch.Tensor, max_views: int = 6)
     return torch.where(count > 0, temps, fill).clamp(0, 1)
 
 
-def hot_points(scene: Scene, points: torch.Tensor, t: float, min_kelvin: float, occlusion_radius: int = 2
-               ) -> torch.Tensor:
-    """(M,) bool: points (M, 3) that some thermal training view at time t sees (no other point in
-    front) on a pixel at least min_kelvin above that frame's median temperature."""
-    views = scene.views_at("thermal", t)
-    if not views:
-        return torch.zeros(len(points), dtype=torch.bool)
-    values, seen = sample_views(scene, views, points, occlusion_radius)
-    medians = []
-    for view in views:
-        frame, valid = scene.target(view)
-        medians.append(frame[valid].median() if valid is not None and valid.any() else frame.median())
-    floor = torch.stack(medians)[:, None] + min_kelvin / (scene.k_max - scene.k_min)
-    return (seen & (values[..., 0] >= floor)).any(0)
-
-
 def changing_points(scene: Scene, points: torch.Tensor, rgb_change: float, kelvin_change: float,
                     fraction: float) -> torch.Tensor:
     """(M,) bool: points where the training views see the scene change over time: in more than

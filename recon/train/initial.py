@@ -10,8 +10,8 @@ from recon.config import TrainConfig
 from recon.dtg.gaussians import init_gaussians, trajectory_knots
 from recon.dtg.model import DTGModel
 from recon.dtg.motion import body_clusters, body_radii
-from recon.dtg.points import (changing_points, colour_seen_fraction, hot_points, initial_temperatures,
-                               observed_time, sample_views, transient_points)
+from recon.dtg.points import (changing_points, colour_seen_fraction, initial_temperatures, observed_time,
+                               sample_views, transient_points)
 from recon.scene import Scene
 from recon.train.anchors import DepthAnchors, find_anchors
 from recon.sfm import interpolated_points, points_from_frames
@@ -159,22 +159,6 @@ def body_gaussians(cfg: TrainConfig, scene: Scene, pts: torch.Tensor, rgb: torch
                           None, basis.float())
 
 
-def hot_members(scene: Scene, pts: torch.Tensor, index: torch.Tensor, bodies: list[torch.Tensor], t: float,
-                min_kelvin: float, log) -> list[torch.Tensor]:
-    """Each body (indices into index, which indexes pts (P, 3)) narrowed to its members on hot
-    pixels at time t (points.hot_points, seen among all of pts), where it has at least 3 of them:
-    the thermal frames tell a hot object from the floor under its path, which also sees the scene
-    change."""
-    hot = hot_points(scene, pts, t, min_kelvin)[index]
-    out = []
-    for members in bodies:
-        mine = members[hot[members]]
-        out.append(mine if len(mine) >= 3 else members)
-    log(f"hot bodies: {sum(len(a) < len(b) for a, b in zip(out, bodies))} of {len(bodies)} bodies keep only "
-        f"their members on hot pixels at t = {t:.3f} ({', '.join(f'{len(a)}/{len(b)}' for a, b in zip(out, bodies))})")
-    return out
-
-
 def _motion_bodies(cfg: TrainConfig, scene: Scene, pts, rgb, dynamic, log):
     """Rigid bodies from the initial points: the moving points as seen at one instant, one body per
     spatially connected group of them. Points of moving things seen at other instants (ghosts
@@ -204,8 +188,6 @@ def _motion_bodies(cfg: TrainConfig, scene: Scene, pts, rgb, dynamic, log):
     if not bodies:
         log("motion bases: the moving points form no body; every Gaussian is static")
         return pts, rgb, dynamic, basis, torch.zeros(0, 3)
-    if m.body_hot_kelvin > 0 and seen is not None:
-        bodies = hot_members(scene, pts, index, bodies, t_seen, m.body_hot_kelvin, log)
     pivots = torch.stack([pts[index[members]].mean(0) for members in bodies])
     for b, members in enumerate(bodies):
         basis[index[members]] = b + 1
