@@ -10,7 +10,11 @@ only (the simulator's objects are read):
 
 At a commit that has ModelConfig.body_hot_kelvin (members on hot pixels only: tried, removed after)
 it also prints, per body, members inside a moving object at t_c (1.2 cm) / members, without and
-with the switch at 10 K (-> probe_hot.txt)."""
+with the switch at 10 K (-> probe_hot.txt).
+
+With --composition it prints only each body of dtg's starting model as members:(inside a moving
+object)m/(inside a static one)s at t_c, and a summary (-> probe_composition.txt; no training, so
+it may read the never-tuned seeds' datasets: nothing is chosen from it)."""
 import sys, json
 from pathlib import Path
 import numpy as np, torch
@@ -22,6 +26,36 @@ from recon.scene import Scene
 from recon.train.initial import initial_model, initial_points
 from recon.dtg.points import changing_points, observed_time, transient_points
 torch.set_grad_enabled(False)
+
+
+def composition(names):
+    counts = {'bodies': 0, 'mostly on a moving object': 0, 'on no object': 0, 'mostly on a static object': 0}
+    for name in names:
+        d = Path(name); meta = json.loads((d / 'sim_meta.json').read_text())['config']
+        o = Oracle(meta['variant'], meta['seed'])
+        cfg = make_config('dtg')
+        model, _ = initial_model(cfg, Scene(load_dataset(d)), torch.Generator().manual_seed(cfg.seed), lambda *a: None)
+        b = model.gaussians['motion_basis'].long().numpy(); x = model.gaussians['means'].numpy()
+        tc = cfg.curriculum.center
+        out = []
+        for k in range(1, b.max() + 1):
+            xs = x[b == k]; mov = np.zeros(len(xs), bool); sta = np.zeros(len(xs), bool)
+            for ob in o.scene.objects:
+                inst = ob.instance(tc * o.scene.duration_s, o.scene.duration_s)
+                inside = ob.shape.contains((xs - inst.position) @ inst.rotation, 0.012)
+                (mov if ob.moving else sta)[:] |= inside
+            out.append(f'{len(xs)}:{mov.sum()}m/{sta.sum()}s')
+            counts['bodies'] += 1
+            counts['mostly on a moving object'] += int(mov.sum() >= len(xs) / 2)
+            counts['on no object'] += int(not (mov | sta).any())
+            counts['mostly on a static object'] += int(sta.sum() >= len(xs) / 2)
+        print(f'{d.name:22s} t_c {tc:.2f} bodies', ' '.join(out), flush=True)
+    print('SUMMARY', counts)
+
+
+if sys.argv[1] == '--composition':
+    composition(sys.argv[2:])
+    sys.exit()
 for name in sys.argv[1:]:
     d = Path(name); meta = json.loads((d / 'sim_meta.json').read_text())['config']
     o = Oracle(meta['variant'], meta['seed'])
