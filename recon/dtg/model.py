@@ -26,6 +26,15 @@ GEOMETRY = ("means", "quats", "log_scales")
 NOT_LEARNED = ("dynamic", "motion_basis")      # per-Gaussian state the trainer sets (densification still carries it)
 
 
+def added(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """a + b for dicts of tensors where a missing key stands for zero (residual dicts hold only what
+    something moves: no full-size zeros, ~1 ms at 80k Gaussians); a's keys first."""
+    out = dict(a)
+    for k, v in b.items():
+        out[k] = out[k] + v if k in out else v
+    return out
+
+
 def feature_shape(cfg: ModelConfig, modality: str) -> tuple[int, int]:
     """(K, C) of a modality's SH features."""
     if modality == "rgb":
@@ -194,20 +203,16 @@ class DTGModel(nn.Module):
 
             def place(own: dict[str, torch.Tensor]):
                 """This stage's geometry residuals (after its gate) -> (geometry, residuals applied).
-                Residual dicts hold only the keys something moves: a stage without a network that
-                moves geometry (dtg's RGB stage) adds no full-size zeros (~1 ms at 80k Gaussians)."""
-                applied = dict(own)
-                for k, v in (first or {}).items():
-                    applied[k] = applied[k] + v if k in applied else v
+                A stage without a network that moves geometry (dtg's RGB stage) has none (`added`)."""
+                applied = added(own, first or {})
                 if "trajectory" in g:       # shared by every modality, trained by every loss
-                    path = lerp_rows(g["trajectory"], t, dim=1)
-                    applied["means"] = applied["means"] + path if "means" in applied else path
+                    applied = added(applied, {"means": lerp_rows(g["trajectory"], t, dim=1)})
                 if "dynamic_logit" in g and self.motion is None:
                     gate = self.dynamic_gate()[:, None]
                     applied = {k: v * gate for k, v in applied.items()}
                 if "dynamic" in g:
                     applied = {k: v * g["dynamic"][:, None] for k, v in applied.items()}
-                moved = {k: geo[k] + applied[k] if k in applied else geo[k] for k in GEOMETRY}
+                moved = added(geo, applied)
                 if self.motion is not None:
                     moved["means"], moved["quats"] = apply_motion(moved["means"], moved["quats"], g["motion_basis"],
                                                                   self.dynamic_gate(), self.motion, t)
