@@ -357,6 +357,10 @@ class CurriculumConfig:
     # the direction one view cannot pin is set by the height, as PriorConfig.level_paths holds it
     # (measured together there: off).
     level: bool = False
+    # Bodies on the paths of the hot and cold objects the thermal frames track and triangulate
+    # (recon/train/paths.py), built at the start, with every time step trained from the start,
+    # instead of from the changing initial points with a growing window.
+    tracked_paths: bool = False
     outside: float = 0.0              # probability of a time step outside the window, with a loss
     outside_keep: float = 0.9         # over the best-fitting fraction of its pixels only
 

@@ -14,6 +14,7 @@ from recon.dtg.points import (changing_points, colour_seen_fraction, initial_tem
                                sample_views, transient_points)
 from recon.scene import Scene
 from recon.train.anchors import DepthAnchors, find_anchors
+from recon.train.paths import TrackedPath, moving_paths
 from recon.sfm import interpolated_points, points_from_frames
 
 
@@ -111,10 +112,17 @@ def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log
     if dynamic is not None:
         log(f"static/dynamic split: {int(dynamic.sum())} of {len(pts)} initial points see a "
             f"changing scene and may move")
-    basis, pivots = None, None
-    if bases:
+    basis, pivots, paths = None, None, []
+    if bases and cfg.curriculum.tracked_paths and "thermal" in m.modalities:
+        paths = moving_paths(scene)
+    if paths:
+        pts, rgb, dynamic, basis, pivots = _tracked_bodies(cfg, scene, pts, rgb, dynamic, paths, gen, log)
+    elif bases:
         pts, rgb, dynamic, basis, pivots = _motion_bodies(cfg, scene, pts, rgb, dynamic, log)
     temps = initial_temperatures(scene, pts) if "thermal" in m.modalities else None
+    for b, path in enumerate(paths):       # a body's temperature as seen where it was built
+        rows = basis == b + 1
+        temps[rows] = seen_colours(scene, "thermal", path.reference, pts[rows], temps[~rows].median()[None])[:, 0]
     gates = body_gates(cfg, scene, pts, rgb, basis) if basis is not None else None
     if gates is not None:       # a body turns about what moves in it, not about the floor it came with
         for b in range(len(pivots)):
@@ -125,7 +133,13 @@ def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log
                             dynamic if m.motion_split else None, basis, gates)
     bgs = {mod: initial_background(scene, mod) for mod in m.modalities}
     radii = body_radii(pts, basis, pivots, m.body_reach) if pivots is not None else None
-    return DTGModel(m, params, n_times=n_times, backgrounds=bgs, pivots=pivots, radii=radii), held
+    model = DTGModel(m, params, n_times=n_times, backgrounds=bgs, pivots=pivots, radii=radii)
+    if paths:
+        with torch.no_grad():
+            knots = torch.linspace(0, 1, model.motion.translation.shape[1])
+            for b, path in enumerate(paths):
+                model.motion.translation[b] = path.at(knots) - pivots[b]
+    return model, held
 
 
 def body_gates(cfg: TrainConfig, scene: Scene, pts: torch.Tensor, rgb: torch.Tensor, basis: torch.Tensor
@@ -157,6 +171,57 @@ def body_gaussians(cfg: TrainConfig, scene: Scene, pts: torch.Tensor, rgb: torch
         temps = torch.where(seen.any(0), temps, initial_temperatures(scene, pts)).clamp(0, 1)
     return init_gaussians(pts, rgb, temps, m, cfg.routing, gen, trajectory_knots(m, scene.steps_per_unit_time()),
                           None, basis.float())
+
+
+def sphere_points(centre: torch.Tensor, radius: float, count: int) -> torch.Tensor:
+    """(count, 3) points spread evenly over a sphere (a Fibonacci lattice)."""
+    i = torch.arange(count, dtype=torch.float32) + 0.5
+    z = 1 - 2 * i / count
+    phi = i * torch.pi * (3 - 5 ** 0.5)
+    ring = (1 - z * z).clamp_min(0).sqrt()
+    return centre + radius * torch.stack([ring * torch.cos(phi), ring * torch.sin(phi), z], 1)
+
+
+def seen_colours(scene: Scene, modality: str, t: float, pts: torch.Tensor, default: torch.Tensor) -> torch.Tensor:
+    """(M, C) what modality's views at time t see where pts (M, 3) project; points no view sees get
+    the mean of those seen (default when none is)."""
+    views = scene.views_at(modality, t)
+    if not views:
+        return default.expand(len(pts), -1).clone()
+    values, seen = sample_views(scene, views, pts)
+    count = seen.sum(0)
+    mean = (values * seen[..., None]).sum(0) / count.clamp_min(1)[:, None]
+    fill = mean[count > 0].mean(0) if bool((count > 0).any()) else default
+    return torch.where((count > 0)[:, None], mean, fill)
+
+
+def _tracked_bodies(cfg: TrainConfig, scene: Scene, pts, rgb, dynamic, paths: list[TrackedPath], gen, log):
+    """Rigid bodies on the paths the thermal frames gave (recon/train/paths.py): per path a sphere
+    of Gaussians of the blob's size at the instant its blob was largest (the pivot), coloured by
+    what the views at that instant see. Initial points the paths pass through (objects recorded at
+    other instants) are dropped. The bodies' paths are known for the whole sequence, so the time
+    window does not grow: every step trains from the start.
+    -> (points, colours, dynamic flags, basis (P',), pivots (B, 3))"""
+    m = cfg.model
+    t = torch.linspace(0, 1, 4 * len(scene.times))
+    ghost = torch.zeros(len(pts), dtype=torch.bool)
+    for path in paths:
+        ghost |= torch.cdist(pts, path.at(t)).amin(1) < 0.9 * path.radius
+    pts, rgb, dynamic = pts[~ghost], rgb[~ghost], None if dynamic is None else dynamic[~ghost]
+    count = 4 * max(m.basis_points, 32)
+    pivots = torch.stack([path.at(path.reference)[0] for path in paths])
+    body_pts = [sphere_points(pivots[b], path.radius, count) for b, path in enumerate(paths)]
+    body_rgb = [seen_colours(scene, "rgb", path.reference, p, torch.full((3,), 0.5)) if "rgb" in m.modalities
+                else torch.full((len(p), 3), 0.5) for p, path in zip(body_pts, paths)]
+    basis = torch.cat([torch.zeros(len(pts))] + [torch.full((count,), b + 1.0) for b in range(len(paths))])
+    if dynamic is not None:
+        dynamic = torch.cat([dynamic, torch.ones(count * len(paths), dtype=torch.bool)])
+    pts, rgb = torch.cat([pts] + body_pts), torch.cat([rgb] + body_rgb)
+    cfg.curriculum.grow_every = 0
+    log(f"motion bases: {len(paths)} rigid bodies on paths tracked in the thermal frames "
+        f"({', '.join(f'r {p.radius:.2f} m, {p.frames} frames' for p in paths)}); {int(ghost.sum())} initial "
+        f"points on their paths dropped; every time step trains from the start")
+    return pts, rgb, dynamic, basis, pivots
 
 
 def _motion_bodies(cfg: TrainConfig, scene: Scene, pts, rgb, dynamic, log):
