@@ -40,7 +40,8 @@ def oracle_paths(scene, ds, settings):
                 continue
             ys, xs = np.nonzero(m)
             border = xs.min() == 0 or ys.min() == 0 or xs.max() == m.shape[1] - 1 or ys.max() == m.shape[0] - 1
-            track.append(P.Blob(t, np.array([xs.mean(), ys.mean()]) + 0.5, int(m.sum()), 1, bool(border)))
+            track.append(P.Blob(t, np.array([xs.mean(), ys.mean()]) + 0.5, int(m.sum()), 1, bool(border),
+                              np.flatnonzero(m), m.shape[1]))
         p = P.fit_track(track, cameras, scene.up().double().numpy(), settings)
         if p is not None:
             out.append(p)
