@@ -201,8 +201,9 @@ def config_from_args(args, overrides: dict, live: bool = False):
     holds while held-out error still improves) within a --minutes cap (default 15); --fixed
     makes --minutes an exact budget; --iterations N trains exactly N iterations."""
     cfg = make_config(args.method, **overrides)
-    if live:     # a capture grows in time by itself: no training window to grow
-        cfg.curriculum.grow_every = 0
+    if live:     # a capture grows in time by itself: no training window to grow, and paths
+        cfg.curriculum.grow_every = 0        # fitted to its first frames only (not measured)
+        cfg.curriculum.tracked_paths = False
     if not live and args.iterations is None:
         cfg.stop.converge = not args.fixed
         cfg.minutes = cfg.minutes or DEFAULT_MINUTES

@@ -130,9 +130,10 @@ def test_the_thermal_frames_give_the_moving_objects_paths(family):
     assert len(matched) == len(found) >= 2
 
 
-def test_training_builds_its_bodies_on_the_tracked_paths(family):
+def test_training_builds_its_bodies_on_the_tracked_paths(family, tmp_path):
     """With curriculum.tracked_paths a run starts with one body per path: its pivot where the path
-    is at the body's instant, its translation knots along the path, and no growing window."""
+    is at the body's instant, its translation knots along the path, and no growing window; a
+    resumed run keeps both."""
     scene, fam = family
     cfg = make_config("dtg", iterations=30, log_every=10**9, checkpoint_every=10**9, eval_every=10**9)
     cfg.curriculum.tracked_paths = True
@@ -148,3 +149,7 @@ def test_training_builds_its_bodies_on_the_tracked_paths(family):
     while not tr.done():
         tr.step()
     assert torch.isfinite(motion.translation).all()
+    tr.save_checkpoint(tmp_path / "latest.pt")
+    back = Trainer.resume(tmp_path / "latest.pt", scene, log=messages.append)
+    assert not back.window.enabled and back.model.motion.count == motion.count
+    assert torch.equal(back.model.motion.translation, motion.translation)

@@ -62,6 +62,7 @@ def moving_error_k(trainer: Trainer) -> float:
 def train(scene, method: str) -> Trainer:
     cfg = make_config(method, iterations=500, log_every=10**9, checkpoint_every=10**9, eval_every=10**9)
     cfg.curriculum.hold, cfg.curriculum.grow_every = 60, 10      # a 500-iteration run's schedule
+    cfg.curriculum.tracked_paths = False          # bodies from the points, tracked by the window
     trainer = Trainer(cfg, scene, log=lambda _: None)
     while not trainer.done():
         trainer.step()
@@ -107,6 +108,7 @@ def window_trained(scene) -> Trainer:
     """dtg 80 iterations into a run whose window grows every 10 from iteration 60: bodies with knots."""
     cfg = make_config("dtg", iterations=500, log_every=10**9, checkpoint_every=10**9, eval_every=10**9)
     cfg.curriculum.hold, cfg.curriculum.grow_every = 60, 10
+    cfg.curriculum.tracked_paths = False
     trainer = Trainer(cfg, scene, log=lambda _: None)
     for _ in range(80):
         trainer.step()
