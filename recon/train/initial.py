@@ -1,6 +1,7 @@
 """The model a run starts from: Gaussians at the dataset's SfM points, their temperatures read from
-the thermal views, learned backgrounds started from the image borders, and (dtg) the rigid bodies
-found among the points that see the scene change (recon/dtg/motion.py)."""
+the thermal views, learned backgrounds started from the image borders, and (dtg) the rigid bodies:
+on the moving objects' paths that the thermal frames give (recon/train/paths.py), else found among
+the points that see the scene change (recon/dtg/motion.py)."""
 from __future__ import annotations
 
 import numpy as np
@@ -92,9 +93,10 @@ def held_points(cfg: TrainConfig, scene: Scene) -> tuple[torch.Tensor, torch.Ten
 def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log
                   ) -> tuple[DTGModel, tuple[torch.Tensor, torch.Tensor] | None]:
     """A new model from the scene's initial points, and the points held out of it for body
-    discovery (recon/train/discover.py; None without). Without discovery the bodies come from the
-    points (_motion_bodies), which may set cfg.curriculum.center (when it is automatic) to the
-    instant the moving points were seen."""
+    discovery (recon/train/discover.py; None without). Without discovery the bodies are built on the
+    paths of curriculum.tracked_paths (_tracked_bodies, which makes the window whole) or, where none
+    is found, come from the points (_motion_bodies, which may set cfg.curriculum.center, when it is
+    automatic, to the instant the moving points were seen)."""
     pts, rgb = initial_points(cfg, scene, gen, log)
     n_times = scene.steps_per_unit_time()
     m = cfg.model
@@ -116,7 +118,7 @@ def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log
     if bases and cfg.curriculum.tracked_paths and "thermal" in m.modalities:
         paths = moving_paths(scene)
     if paths:
-        pts, rgb, dynamic, basis, pivots = _tracked_bodies(cfg, scene, pts, rgb, dynamic, paths, gen, log)
+        pts, rgb, dynamic, basis, pivots = _tracked_bodies(cfg, scene, pts, rgb, dynamic, paths, log)
     elif bases:
         pts, rgb, dynamic, basis, pivots = _motion_bodies(cfg, scene, pts, rgb, dynamic, log)
     temps = initial_temperatures(scene, pts) if "thermal" in m.modalities else None
@@ -195,7 +197,7 @@ def seen_colours(scene: Scene, modality: str, t: float, pts: torch.Tensor, defau
     return torch.where((count > 0)[:, None], mean, fill)
 
 
-def _tracked_bodies(cfg: TrainConfig, scene: Scene, pts, rgb, dynamic, paths: list[TrackedPath], gen, log):
+def _tracked_bodies(cfg: TrainConfig, scene: Scene, pts, rgb, dynamic, paths: list[TrackedPath], log):
     """Rigid bodies on the paths the thermal frames gave (recon/train/paths.py): per path a sphere
     of Gaussians of the blob's size at the instant its blob was largest (the pivot), coloured by
     what the views at that instant see. Initial points the paths pass through (objects recorded at

@@ -294,11 +294,11 @@ def merged_times(path: TrackedPath, still: list[TrackedPath]) -> set[float]:
 
 def same_object(p: TrackedPath, q: TrackedPath) -> bool:
     """Whether two paths were fitted to one object's blobs (at two contrast levels): at the instants
-    both saw, their blobs' centres lie within half the larger diameter at least half the time. (In 3D two fits of one
-    object may differ along the rays, the one direction a view cannot measure.)"""
+    both saw, their blobs' centres lie within half the larger diameter at least half the time. (In
+    3D two fits of one object may differ along the rays, the one direction a view cannot measure.)"""
     both = set(p.seen) & set(q.seen)
-    near = [np.linalg.norm(p.seen[t].centroid - q.seen[t].centroid) <= 0.5 * max(p.seen[t].diameter, q.seen[t].diameter)
-            for t in both]
+    near = [np.linalg.norm(p.seen[t].centroid - q.seen[t].centroid)
+            <= 0.5 * max(p.seen[t].diameter, q.seen[t].diameter) for t in both]
     return len(near) > 0 and sum(near) >= 0.5 * len(near)
 
 
