@@ -18,4 +18,4 @@ for scene in sorted({s for s, _ in ra}):
         print('MEDIAN', scene, ' '.join(f"{n} {st.median(x[k] or float('nan') for x, _ in pairs):.2f}/"
                                         f"{st.median(y[k] or float('nan') for _, y in pairs):.2f}" for k, n, _ in keys))
         print('  B better: thermal MAE on', sum(y['mae_k_thermal'] < x['mae_k_thermal'] for x, y in pairs),
-              'RGB on', sum(y['psnr_rgb'] > x['psnr_rgb'] for x, y in pairs), 'of', len(pairs))
+              'RGB on', sum((y['psnr_rgb'] or 0) > (x['psnr_rgb'] or 0) for x, y in pairs), 'of', len(pairs))
