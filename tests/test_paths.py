@@ -11,19 +11,10 @@ from recon.data.simulate import SimulateConfig, simulate_dataset
 from recon.scene import Scene
 from recon.train import paths as P
 from recon.train.trainer import Trainer
+from rig.sim.camera import look_at
 from rig.sim.family import FamilyScene
 
 pytestmark = pytest.mark.usefixtures("two_threads")
-
-
-def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """(3, 4) world -> camera [R | t], OpenCV axes, z up in the world."""
-    z = (target - eye) / np.linalg.norm(target - eye)
-    x = np.cross(z, [0, 0, 1.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    r = np.stack([x, y, z])
-    return np.concatenate([r, -(r @ eye)[:, None]], 1)
 
 
 def sweep(times: np.ndarray, degrees: float, shake: float = 0.01) -> np.ndarray:
@@ -36,7 +27,7 @@ def sweep(times: np.ndarray, degrees: float, shake: float = 0.01) -> np.ndarray:
     for t in times:
         az = np.radians(degrees * (2 * t ** 1.3 - 1))
         eye = 1.5 * np.array([np.cos(az) * np.cos(0.44), np.sin(az) * np.cos(0.44), np.sin(0.44)])
-        out.append(k @ look_at(eye + rng.normal(0, shake, 3), np.zeros(3)))
+        out.append(k @ np.linalg.inv(look_at(eye + rng.normal(0, shake, 3), np.zeros(3)))[:3])
     return np.stack(out)
 
 

@@ -79,7 +79,6 @@ class TrackedPath:
     knots: torch.Tensor
     reference: float              # the instant its blob is largest and whole: where a body is built
     radius: float                 # metres, from the blob's area and depth at `reference`
-    sign: int
     reprojection: float           # median px at 160 px wide
     still_error: float            # median px at 160 px wide of the best still point: large where it moves
     frames: int                   # whole frames fitted
@@ -106,6 +105,17 @@ def projection(camera) -> np.ndarray:
     """(3, 4) K [R | t] of a camera (world -> pixels, OpenCV axes)."""
     k = np.array([[camera.fx, 0, camera.cx], [0, camera.fy, camera.cy], [0, 0, 1.0]])
     return k @ camera.viewmat[:3].double().numpy()
+
+
+def to_pixels(projections: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(T, 2) pixels of points (T, 3) or one point (3,) through projections (T, 3, 4); a point on a
+    camera's plane (depth ~0) lands far off, not at infinity."""
+    if points.ndim == 2:
+        p = np.einsum("tij,tj->ti", projections[:, :, :3], points) + projections[:, :, 3]
+    else:
+        p = projections[:, :, :3] @ points + projections[:, :, 3]
+    z = np.where(np.abs(p[:, 2]) < 1e-6, 1e-6, p[:, 2])
+    return p[:, :2] / z[:, None]
 
 
 def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndarray, knots: int,
@@ -139,10 +149,7 @@ def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndar
                                 np.concatenate([-rows[:, 3] * scale, np.zeros(len(prior))]), rcond=None)[0]
 
     def residuals(x: np.ndarray) -> np.ndarray:
-        path = basis @ x.reshape(knots, 3)
-        p = np.einsum("tij,tj->ti", projections[:, :, :3], path) + projections[:, :, 3]
-        z = np.where(np.abs(p[:, 2]) < 1e-6, 1e-6, p[:, 2])
-        return np.concatenate([(p[:, :2] / z[:, None] - pixels).ravel(), prior @ x])
+        return np.concatenate([(to_pixels(projections, basis @ x.reshape(knots, 3)) - pixels).ravel(), prior @ x])
 
     return least_squares(residuals, start, method="lm", max_nfev=200 * len(start)).x.reshape(knots, 3)
 
@@ -150,9 +157,7 @@ def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndar
 def reprojection_errors(knots: np.ndarray, times: np.ndarray, projections: np.ndarray,
                         pixels: np.ndarray) -> np.ndarray:
     """(T,) pixel distance between each fitted point's projection and its observed pixel."""
-    path = hat_basis(times, len(knots)) @ knots
-    p = np.einsum("tij,tj->ti", projections, np.concatenate([path, np.ones((len(path), 1))], 1))
-    return np.linalg.norm(p[:, :2] / p[:, 2:3] - pixels, axis=1)
+    return np.linalg.norm(to_pixels(projections, hat_basis(times, len(knots)) @ knots) - pixels, axis=1)
 
 
 def frame_blobs(kelvin: np.ndarray, valid: np.ndarray | None, time: float, contrast: float,
@@ -225,14 +230,14 @@ def fit_track(track: list[Blob], cameras: dict, up: np.ndarray | None, settings:
     knots = triangulate_path(times, projections, pixels, settings.knots, settings.smoothness, settings.level, up)
     width = cameras[whole[0].time].width
     error = float(np.median(reprojection_errors(knots, times, projections, pixels))) * 160 / width
-    ref = max(whole, key=lambda b: (b.area, -abs(b.time - 0.5)))
-    cam = cameras[ref.time]
-    point = hat_basis(np.array([ref.time]), settings.knots) @ knots
-    depth = float((projection(cam)[2, :3] @ point[0]) + projection(cam)[2, 3])
+    r = max(range(len(whole)), key=lambda i: (whole[i].area, -abs(whole[i].time - 0.5)))
+    ref, cam = whole[r], cameras[whole[r].time]
+    point = hat_basis(np.array([ref.time]), settings.knots)[0] @ knots
+    depth = float(projections[r, 2, :3] @ point + projections[r, 2, 3])
     if depth <= 0 or error > settings.max_reprojection:
         return None
     radius = np.sqrt(ref.area / np.pi) * depth / cam.fx
-    return TrackedPath(torch.as_tensor(knots, dtype=torch.float32), ref.time, float(radius), ref.sign, error,
+    return TrackedPath(torch.as_tensor(knots, dtype=torch.float32), ref.time, float(radius), error,
                        still_point_error(projections, pixels, knots.mean(0)) * 160 / width, len(whole),
                        {b.time: b for b in whole})
 
@@ -241,9 +246,7 @@ def still_point_error(projections: np.ndarray, pixels: np.ndarray, start: np.nda
     """Median pixel error of the one still point that best explains pixels (T, 2) seen through
     projections (T, 3, 4), refined from start (3,)."""
     def residuals(x: np.ndarray) -> np.ndarray:
-        p = projections[:, :, :3] @ x + projections[:, :, 3]
-        z = np.where(np.abs(p[:, 2]) < 1e-6, 1e-6, p[:, 2])
-        return (p[:, :2] / z[:, None] - pixels).ravel()
+        return (to_pixels(projections, x) - pixels).ravel()
     x = least_squares(residuals, start, method="lm").x
     return float(np.median(np.linalg.norm(residuals(x).reshape(-1, 2), axis=1)))
 
