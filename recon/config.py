@@ -218,6 +218,9 @@ class PriorConfig:
     # 2.09 outside; on the never-tuned seeds inside 2.43 -> 3.06 K (7 of 8 worse), outside 1.93 ->
     # 1.76 K (bench/results/level; docs/training.md, "Moving bodies keep their height"): off.
     level_paths: float = 0.0
+    # squared distance of the bodies on tracked paths (curriculum.tracked_paths) from those paths
+    # (MotionBases.anchor_pull, in scene extents): training alone slides them along the rays
+    path_anchor: float = 0.0
     max_aspect: float = 5.0
     knn: int = 8
     knn_falloff: float = 2000.0      # w = exp(-falloff d^2 / E^2), as the embedding smoothness

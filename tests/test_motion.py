@@ -225,3 +225,25 @@ def test_climb_prices_vertical_speed_only():
     climb.backward()
     grad = bases.translation.grad[1, 3]
     assert float(grad.norm()) > 0 and float((grad - (grad @ up) * up).norm()) < 1e-6
+
+
+def test_anchor_pull_holds_only_the_anchored_bases_to_their_paths():
+    bases = MotionBases(torch.zeros(2, 3), knots=4)
+    path = torch.linspace(0, 1, 4)[:, None] * torch.tensor([0.4, 0.0, 0.3])
+    with torch.no_grad():
+        bases.anchors[0] = path
+        bases.anchored[0, :3] = True                     # knot 3 not measured: free
+        bases.translation[0] = path
+        bases.translation[0, 3] += 1.0
+        bases.translation[1] = 5.0                       # not anchored: free to be anywhere
+    assert float(bases.anchor_pull(2.0).detach()) == 0
+    with torch.no_grad():
+        bases.translation[0, 2] += torch.tensor([0.0, 0.2, 0.0])
+    pull = bases.anchor_pull(2.0)
+    assert float(pull.detach()) == pytest.approx(0.1 ** 2 / 4, rel=1e-5)    # 0.1 extents at one knot of 4
+    pull.backward()
+    grad = bases.translation.grad
+    assert float(grad[1].abs().sum()) == 0 and float(grad[0, 2, 1]) > 0 and float(grad[0, [0, 1, 3]].abs().sum()) == 0
+    with torch.no_grad():
+        bases.translation[0, 3] -= 1.0                   # knot 3 back on the path: the pull is unchanged
+    assert float(bases.anchor_pull(2.0).detach()) == pytest.approx(float(pull.detach()), rel=1e-6)

@@ -137,6 +137,7 @@ def test_training_builds_its_bodies_on_the_tracked_paths(family, tmp_path):
     knots = torch.linspace(0, 1, motion.translation.shape[1])
     for b, path in enumerate(found):
         assert torch.allclose(motion.pivots[b] + motion.translation[b].detach(), path.at(knots), atol=1e-5)
+    assert motion.anchored.any(1).all() and torch.equal(motion.anchors, motion.translation.detach())
     while not tr.done():
         tr.step()
     assert torch.isfinite(motion.translation).all()
@@ -144,3 +145,4 @@ def test_training_builds_its_bodies_on_the_tracked_paths(family, tmp_path):
     back = Trainer.resume(tmp_path / "latest.pt", scene, log=messages.append)
     assert not back.window.enabled and back.model.motion.count == motion.count
     assert torch.equal(back.model.motion.translation, motion.translation)
+    assert torch.equal(back.model.motion.anchors, motion.anchors) and torch.equal(back.model.motion.anchored, motion.anchored)

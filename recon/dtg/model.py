@@ -275,6 +275,11 @@ class DTGModel(nn.Module):
                 setattr(model.time_embedding, name, nn.Parameter(sd[key].clone()))
         if model.motion is not None and "motion.radii" not in sd:     # written before bodies had a reach
             sd = {**sd, "motion.radii": torch.zeros(model.motion.count)}
+        if model.motion is not None and "motion.anchored" not in sd:  # written before paths were anchored
+            sd = {**sd, "motion.anchors": torch.zeros_like(model.motion.translation),
+                  "motion.anchored": torch.zeros(model.motion.translation.shape[:2], dtype=torch.bool)}
+        if model.motion is not None:        # as many knots as the translation's
+            model.motion.anchors, model.motion.anchored = sd["motion.anchors"].clone(), sd["motion.anchored"].clone()
         model.load_state_dict(sd)
         return model
 

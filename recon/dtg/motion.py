@@ -45,6 +45,10 @@ class MotionBases(nn.Module):
         self.register_buffer("radii", torch.zeros(b) if radii is None else radii.clone().float())
         self.rotation = nn.Parameter(torch.zeros(b, knots, 3))
         self.translation = nn.Parameter(torch.zeros(b, knots, 3))
+        # translation knots measured outside the training loss (recon/train/paths.py), where
+        # `anchored` (B, K) is set; PriorConfig.path_anchor holds them there (anchor_pull)
+        self.register_buffer("anchors", torch.zeros(b, knots, 3))
+        self.register_buffer("anchored", torch.zeros(b, knots, dtype=torch.bool))
 
     @property
     def count(self) -> int:
@@ -85,6 +89,18 @@ class MotionBases(nn.Module):
             return self.rotation.sum() * 0
         acc = lambda x: (x[:, 2:] - 2 * x[:, 1:-1] + x[:, :-2]).pow(2).sum(-1).mean(1).sum()  # noqa: E731
         return acc(self.rotation) + acc(self.translation / extent)
+
+    def anchor_pull(self, extent: float) -> torch.Tensor:
+        """Squared distance (in scene extents) of the anchored translation knots from their anchors,
+        averaged over each basis' knots and summed over bases.
+
+        The training views prefer a wrong depth for a moving body (docs/training.md, "Where a path's
+        depth goes wrong"): unheld, a triangulated path drifts along the rays while the rest of
+        the scene fits around it."""
+        if not bool(self.anchored.any()) or self.anchors.shape != self.translation.shape:
+            return self.translation.sum() * 0
+        off = (self.translation - self.anchors) / extent
+        return (off.pow(2).sum(-1) * self.anchored).mean(1).sum()
 
     def climb(self, up: torch.Tensor, extent: float) -> torch.Tensor:
         """Squared vertical speed of each basis' translation (in scene extents per knot) along

@@ -141,6 +141,8 @@ def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log
             knots = torch.linspace(0, 1, model.motion.translation.shape[1])
             for b, path in enumerate(paths):
                 model.motion.translation[b] = path.at(knots) - pivots[b]
+                model.motion.anchors[b] = model.motion.translation[b]
+                model.motion.anchored[b] = measured_knots(knots, path)
     return model, held
 
 
@@ -173,6 +175,14 @@ def body_gaussians(cfg: TrainConfig, scene: Scene, pts: torch.Tensor, rgb: torch
         temps = torch.where(seen.any(0), temps, initial_temperatures(scene, pts)).clamp(0, 1)
     return init_gaussians(pts, rgb, temps, m, cfg.routing, gen, trajectory_knots(m, scene.steps_per_unit_time()),
                           None, basis.float())
+
+
+def measured_knots(knots: torch.Tensor, path: TrackedPath) -> torch.Tensor:
+    """(K,) which knot times knots (K,) lie within the span of the frames path was fitted to (one
+    knot's spacing either side): beyond it the path is extrapolated, not measured."""
+    seen = torch.tensor(sorted(path.seen), dtype=knots.dtype)
+    step = float(knots[1] - knots[0]) if len(knots) > 1 else 1.0
+    return (knots >= seen[0] - step) & (knots <= seen[-1] + step)
 
 
 def sphere_points(centre: torch.Tensor, radius: float, count: int) -> torch.Tensor:

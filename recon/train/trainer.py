@@ -291,6 +291,10 @@ class Trainer:
             acc = model.motion.smoothness(self.extent)
             reg = reg + self.cfg.priors.basis_smoothness * acc
             stats["basis_acc"] = float(acc.detach())
+        if model.motion is not None and self.cfg.priors.path_anchor > 0:
+            pull = model.motion.anchor_pull(self.extent)
+            reg = reg + self.cfg.priors.path_anchor * pull
+            stats["basis_anchor"] = float(pull.detach())
         if model.motion is not None and self.cfg.priors.level_paths > 0:
             climb = model.motion.climb(self.up, self.extent)
             reg = reg + self.cfg.priors.level_paths * climb
