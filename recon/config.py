@@ -229,6 +229,26 @@ class PriorConfig:
 
 
 @dataclass
+class PathConfig:
+    """How recon/train/paths.py finds moving objects' paths in the thermal frames (with
+    curriculum.tracked_paths). Chosen on the development seeds 40-43 by the path probe
+    (bench/results/tracked-paths/probe_paths.txt), not by training."""
+    contrast: tuple[float, ...] = (10.0, 20.0, 40.0)   # kelvin from the frame's median: one set of
+                                  # blobs per level (two objects whose blobs touch at one level part at a hotter one)
+    min_area: float = 2e-4        # smallest blob, as a fraction of the frame's pixels (4 px at 160x120)
+    max_area: float = 0.15        # larger regions are background (sky, a wall in the sun)
+    whole: tuple[float, float] = (0.6, 1.6)   # a frame counts where the blob's area is within these
+                                  # multiples of the track's 25th percentile (not cut, not merged with another)
+    min_frames: int = 12          # whole frames a track needs (fewer: too little parallax to trust)
+    knots: int = 11
+    smoothness: float = 1.0       # weight of the knots' second differences (metres, per knot)
+    level: float = 1e4            # weight of the knots' heights along up staying at their mean
+    max_reprojection: float = 2.0     # px (at 160 px wide): a worse fit is not one object's path
+    min_still_error: float = 3.0  # px (at 160 px wide): a still point explains a blob this well or better
+    min_travel: float = 0.05      # and its path's largest distance from its mean, in scene extents
+
+
+@dataclass
 class LearningRates:
     # 3DGS/E-D3DGS values; ``*_scene`` ones are multiplied by the scene extent E.
     means_scene: tuple[float, float] = (1.6e-4, 1.6e-6)   # exponential decay over the run
@@ -380,6 +400,7 @@ class TrainConfig:
     stop: StopConfig = field(default_factory=StopConfig)
     guard: GuardConfig = field(default_factory=GuardConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
+    paths: PathConfig = field(default_factory=PathConfig)
     iterations: int = 3000            # the schedule's nominal length
     minutes: float | None = None      # wall-clock budget (progress = elapsed / budget), or with
                                       # stop.converge the cap
@@ -497,7 +518,7 @@ def config_from_dict(d: dict) -> TrainConfig:
         d[key] = {**past, **d.get(key, {})}
     sub = {"model": ModelConfig, "routing": RoutingConfig, "loss": LossConfig, "priors": PriorConfig,
            "lr": LearningRates, "densify": DensifyConfig, "stop": StopConfig, "guard": GuardConfig,
-           "curriculum": CurriculumConfig}
+           "curriculum": CurriculumConfig, "paths": PathConfig}
     for key, cls in sub.items():
         fields = {f.name for f in dataclasses.fields(cls)}
         d[key] = cls(**{k: _tuples(v) for k, v in d.get(key, {}).items() if k in fields})

@@ -69,7 +69,7 @@ def test_blobs_link_into_one_track_per_object_and_part_at_a_hotter_level():
     """A hot disc moving across the frame, a still warm one and a cold one: one track each over all
     20 frames. Where the moving disc touches the warm one, the 10 K level sees one blob and the
     40 K level the hot disc alone."""
-    settings = P.PathSettings()
+    settings = P.PathConfig()
     frames = []
     for i in range(20):
         f = np.full((60, 80), 295.0)

@@ -116,7 +116,7 @@ def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log
             f"changing scene and may move")
     basis, pivots, paths = None, None, []
     if bases and cfg.curriculum.tracked_paths and "thermal" in m.modalities:
-        paths = moving_paths(scene)
+        paths = moving_paths(scene, cfg.paths)
     if paths:
         pts, rgb, dynamic, basis, pivots = _tracked_bodies(cfg, scene, pts, rgb, dynamic, paths, log)
     elif bases:

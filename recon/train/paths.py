@@ -34,22 +34,7 @@ import numpy as np
 import torch
 from scipy.optimize import least_squares
 
-
-@dataclass(frozen=True)
-class PathSettings:
-    contrast: tuple[float, ...] = (10.0, 20.0, 40.0)   # kelvin from the frame's median: one set of
-                                  # blobs per level (two objects whose blobs touch at one level part at a hotter one)
-    min_area: float = 2e-4        # smallest blob, as a fraction of the frame's pixels (4 px at 160x120)
-    max_area: float = 0.15        # larger regions are background (sky, a wall in the sun)
-    whole: tuple[float, float] = (0.6, 1.6)   # a frame counts where the blob's area is within these
-                                  # multiples of the track's 25th percentile (not cut, not merged with another)
-    min_frames: int = 12          # whole frames a track needs (fewer: too little parallax to trust)
-    knots: int = 11
-    smoothness: float = 1.0       # weight of the knots' second differences (metres, per knot)
-    level: float = 1e4            # weight of the knots' heights along up staying at their mean
-    max_reprojection: float = 2.0     # px (at 160 px wide): a worse fit is not one object's path
-    min_still_error: float = 3.0  # px (at 160 px wide): a still point explains a blob this well or better
-    min_travel: float = 0.05      # and its path's largest distance from its mean, in scene extents
+from recon.config import PathConfig
 
 
 @dataclass
@@ -161,7 +146,7 @@ def reprojection_errors(knots: np.ndarray, times: np.ndarray, projections: np.nd
 
 
 def frame_blobs(kelvin: np.ndarray, valid: np.ndarray | None, time: float, contrast: float,
-                settings: PathSettings) -> list[Blob]:
+                settings: PathConfig) -> list[Blob]:
     """Blobs of one thermal frame (H, W) in kelvin: connected regions `contrast` kelvin hotter or
     colder than its median."""
     h, w = kelvin.shape
@@ -214,7 +199,7 @@ def link_tracks(blobs: list[list[Blob]], width: int) -> list[list[Blob]]:
     return tracks
 
 
-def fit_track(track: list[Blob], cameras: dict, up: np.ndarray | None, settings: PathSettings) -> TrackedPath | None:
+def fit_track(track: list[Blob], cameras: dict, up: np.ndarray | None, settings: PathConfig) -> TrackedPath | None:
     """The path of one track (cameras: time -> the thermal camera there), or None when it has too
     few whole frames or no path explains them."""
     whole = [b for b in track if not b.border]
@@ -257,8 +242,10 @@ def travel(path: TrackedPath, samples: int = 41) -> float:
     return float((p - p.mean(0)).norm(dim=1).max())
 
 
-def moving_paths(scene, settings: PathSettings = PathSettings()) -> list[TrackedPath]:
-    """The paths of the moving hot or cold objects the thermal training frames show."""
+def moving_paths(scene, settings: PathConfig | None = None) -> list[TrackedPath]:
+    """The paths of the moving hot or cold objects the thermal training frames show (settings:
+    TrainConfig.paths; None: the defaults)."""
+    settings = settings or PathConfig()
     views = [(t, scene.views_at("thermal", t)[0]) for t in scene.times if scene.views_at("thermal", t)]
     if len(views) < settings.min_frames:
         return []

@@ -55,7 +55,7 @@ for name in sys.argv[1 + oracle:]:
     o = Oracle(meta['variant'], meta['seed'])
     ds = load_dataset(d)
     scene = Scene(ds)
-    settings = P.PathSettings()
+    settings = P.PathConfig()
     found = oracle_paths(scene, ds, settings) if oracle else P.moving_paths(scene, settings)
     times = np.array([t for t in scene.times if scene.views_at('thermal', t)])
     truth = np.stack([[o.pose(k, t).position for t in times] for k in range(len(o.objects))])   # (O, T, 3)
