@@ -60,11 +60,7 @@ def main():
         trainer = Trainer(cfg, scene, log=lambda *a: None)
         times = np.array([t for t in scene.times if scene.views_at('thermal', t)])
         truth = np.stack([[o.pose(k, t).position for t in times] for k in range(len(o.objects))])
-        eyes = []
-        for t in times:
-            vm = scene.views_at('thermal', float(t))[0].camera.viewmat.double().numpy()
-            eyes.append(-vm[:3, :3].T @ vm[:3, 3])
-        eyes = np.stack(eyes)
+        eyes = np.stack([scene.views_at('thermal', float(t))[0].camera.center.double().numpy() for t in times])
         start = centres(trainer.model, times)
         t0 = time.time()
         while time.time() - t0 < seconds:
