@@ -108,6 +108,14 @@ class ModelConfig:
     # uniform-temperature floor) closes its gate instead of drifting, while one the loss pulls
     # onto a moving object keeps it open.
     geometry_gate_init: float | None = None
+    # The networks' geometry residuals are held at zero (no gradient) until this share of the run:
+    # first a network learns how each Gaussian's temperature and opacity change over time, then it
+    # may move them. Moving from the start, dtg's F_th explained a hot plate heating 25 -> ~115 C by
+    # moving its Gaussians (the std over time of its temperature residuals 0.107 -> 0.011), which the
+    # other rig sees misplaced: plate thermal MAE 2.3 -> 10.5 K (default scene, 3000 it; with 0.3:
+    # 2.3 K). Off: at 0.3 the family's never-tuned seeds lost on their moving objects (inside moving
+    # region 13.5 -> 15.8 K, outside thermal MAE 1.85 -> 2.30 K; docs/training.md "A heating hot plate").
+    geometry_from: float = 0.0
     # A network that moves geometry (F_th in `dtg`) runs only on the Gaussians whose place before it
     # lies in the camera's view (or training window) widened by this fraction of the whole view's
     # size on each side; the others get no residual. Exact unless a residual carries a Gaussian

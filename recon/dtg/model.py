@@ -138,8 +138,8 @@ class DTGModel(nn.Module):
 
     def means_at(self, stage: str, t: float, progress: float, index: torch.Tensor) -> torch.Tensor:
         """Positions (S, 3) at time t of the Gaussians `index` (S,) after one stage's residuals."""
-        if stage is None or stage not in self.deformers:    # no network moves geometry (bases may)
-            moved = torch.zeros_like(self.gaussians["means"][index])
+        if stage is None or stage not in self.deformers or not self.geometry_on(progress):
+            moved = torch.zeros_like(self.gaussians["means"][index])    # no network moves geometry (bases may)
         else:
             key = embedding_key(stage)
             res = self.deformers[stage](self.time_embedding(t, progress), self.gaussians[key][index])
@@ -158,6 +158,10 @@ class DTGModel(nn.Module):
             means, _ = apply_motion(means, None, self.gaussians["motion_basis"][index],
                                     self.dynamic_gate(index), self.motion, t)
         return means
+
+    def geometry_on(self, progress: float) -> bool:
+        """Whether the networks' geometry residuals apply at this progress (ModelConfig.geometry_from)."""
+        return progress >= self.cfg.geometry_from
 
     def dynamic_gate(self, index: torch.Tensor | slice = slice(None)) -> torch.Tensor:
         """(N,) or (S,) how much each Gaussian may move (needs a static/dynamic split)."""
@@ -192,8 +196,8 @@ class DTGModel(nn.Module):
             first = None
             if cfg.deformation == "progressive" and modality == "thermal" and "rgb" in cfg.modalities:
                 first = rgb_geometry
-                if first is None and not self.moves_geometry("rgb"):
-                    first = {}         # F_rgb moves no geometry: nothing to add
+                if first is None and (not self.moves_geometry("rgb") or not self.geometry_on(progress)):
+                    first = {}         # F_rgb moves no geometry (yet): nothing to add
                 if first is None:      # what the RGB stage's render applied (its gates too)
                     rgb_gate = self.geometry_gate("rgb")
                     first = {k: v if rgb_gate is None else v * rgb_gate[:, None]
@@ -241,7 +245,7 @@ class DTGModel(nn.Module):
                     return rows
                 return torch.nonzero(routed).view(-1) if rows is None else rows[routed.index_select(0, rows)]
             res = {} if later else self.stage_residuals(stage, t, progress, rows=drawn(rows))
-            own = {k: res[k] for k in GEOMETRY if k in res}
+            own = {k: res[k] for k in GEOMETRY if k in res} if self.geometry_on(progress) else {}
             gate = self.geometry_gate(stage)
             if gate is not None:
                 own = {k: v * gate[:, None] for k, v in own.items()}
