@@ -7,6 +7,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -15,9 +16,13 @@ import torch
 from recon.config import make_config
 from recon.data import load_dataset
 from recon.data.simulate import SimulateConfig, simulate_dataset
+from recon.dtg.gaussians import extend_knots
+from recon.dtg.motion import MotionBases
+from recon.dtg.time_embedding import resample_rows
 from recon.live.follow import FollowOptions, align_dataset, follow, similarity
 from recon.render import render_frame
 from recon.scene import Scene
+from recon.train.timeline import _resize_motion
 from recon.dtg.model import time_rows
 from recon.dtg.time_embedding import TimeEmbedding
 from recon.train.trainer import Trainer
@@ -206,3 +211,27 @@ def test_follow_finishes_a_capture_that_died_without_closing(tmp_path):
     assert any("treating the capture as ended" in line for line in logs), logs
     assert data_dir is not None and trainer.iteration >= 20
     assert time.monotonic() - t0 < 300
+
+
+def test_growing_time_carries_the_paths_anchors():
+    """timeline: the motion bodies' anchors (PriorConfig.path_anchor) follow their knots, so the
+    pull keeps acting on the measured knots after the time axis grows (it had stopped: shapes differed)."""
+    motion = MotionBases(torch.zeros(1, 3), 5)
+    with torch.no_grad():
+        motion.translation.copy_(torch.linspace(0, 1, 5)[None, :, None].expand(1, 5, 3))
+    motion.anchors = motion.translation.detach() + 0.1
+    motion.anchored = torch.tensor([[True, True, True, False, False]])
+    pull = float(motion.anchor_pull(1.0).detach())
+    model = SimpleNamespace(motion=motion)
+    opt = torch.optim.Adam([{"params": [motion.rotation], "name": "motion_rotation"},
+                            {"params": [motion.translation], "name": "motion_translation"}])
+    _resize_motion(model, opt, lambda x, moment: extend_knots(x, 2, zero=moment))
+    assert motion.anchors.shape == motion.translation.shape == (1, 9, 3)
+    assert motion.anchored.tolist() == [[True, True, True] + [False] * 6]
+    # the same three knots held, now averaged over 9 knots instead of 5
+    assert abs(float(motion.anchor_pull(1.0).detach()) - pull * 5 / 9) < 1e-6
+    _resize_motion(model, opt, lambda x, moment: resample_rows(x, (x.shape[1] - 1) * 2 + 1, dim=1))
+    assert motion.anchors.shape == motion.translation.shape == (1, 17, 3)
+    # a new knot is anchored only between two anchored ones
+    assert motion.anchored[0].nonzero().view(-1).tolist() == [0, 1, 2, 3, 4]
+    assert torch.allclose(motion.anchors[0, :5], motion.translation[0, :5].detach() + 0.1, atol=1e-6)

@@ -97,8 +97,6 @@ class MotionBases(nn.Module):
         The training views prefer a wrong depth for a moving body (docs/training.md, "Where a path's
         depth goes wrong"): unheld, a triangulated path drifts along the rays while the rest of
         the scene fits around it."""
-        if not bool(self.anchored.any()) or self.anchors.shape != self.translation.shape:
-            return self.translation.sum() * 0
         off = (self.translation - self.anchors) / extent
         return (off.pow(2).sum(-1) * self.anchored).mean(1).sum()
 

@@ -33,7 +33,8 @@ def refine_time(model: DTGModel, optimizer: torch.optim.Optimizer, factor: int) 
 
 @torch.no_grad()
 def _resize_motion(model: DTGModel, optimizer: torch.optim.Optimizer, fn) -> None:
-    """fn(knots (B, K, 3), is_moment) -> (B, K', 3) for the motion bodies and their Adam moments."""
+    """fn(knots (B, K, C), is_moment) -> (B, K', C) for the motion bodies, their Adam moments and their
+    paths' anchors (is_moment: new knots are zero, not copies: an extended span is not anchored)."""
     motion = model.motion
     if motion is None:
         return
@@ -47,6 +48,9 @@ def _resize_motion(model: DTGModel, optimizer: torch.optim.Optimizer, fn) -> Non
             optimizer.state[param] = {k: (fn(v, True) if torch.is_tensor(v) and v.dim() == 3 else v)
                                       for k, v in state.items()}
         setattr(motion, name, param)
+    # the paths' anchors follow their knots; a new knot is anchored only between anchored ones
+    anchored = fn(motion.anchored[..., None].float(), True)[..., 0]
+    motion.anchors, motion.anchored = fn(motion.anchors, True), anchored >= 1 - 1e-6
 
 
 def _resize_trajectories(model: DTGModel, optimizer: torch.optim.Optimizer, fn) -> None:
