@@ -1,13 +1,9 @@
-import sys, torch, json
+"""python plate_res.py RUN : F_th's residuals on the default scene's hot plate over time (thermal-drawn Gaussians)."""
+import sys, torch
 from pathlib import Path
 ROOT = Path(__file__).resolve().parents[3]; sys.path.insert(0, str(ROOT))
-from recon.train.trainer import Trainer
-from recon.scene import Scene
-from recon.data import load_dataset
-run = Path(sys.argv[1])
-data = Path(json.loads((run / 'scene.json').read_text())['dataset'])
-tr = Trainer.resume(run / 'checkpoints' / 'latest.pt', Scene(load_dataset(data)), log=lambda _: None, threads=2)
-m = tr.model; g = m.gaussians
+from recon.render import load_run
+m = load_run(Path(sys.argv[1]))[0]; g = m.gaussians
 plate = (g['means'][:, :2] - torch.tensor([-0.08, 0.06])).norm(dim=1) < 0.06
 plate &= g['means'][:, 2].abs() < 0.03
 roles = g['route_logits'].argmax(1)
