@@ -110,7 +110,7 @@ def test_the_thermal_frames_give_the_moving_objects_paths(family):
     follows a moving object (median over the sequence within 10 cm; measured 2-7 cm), at least two
     objects are found, and the still hot things are not taken for moving ones."""
     scene, fam = family
-    found = P.moving_paths(scene)
+    found = P.tracked_paths(scene).moving
     times = np.linspace(0, 1, 40)
     truth = object_paths(fam, times)
     matched = set()
@@ -130,7 +130,7 @@ def test_training_builds_its_bodies_on_the_tracked_paths(family, tmp_path):
     cfg.curriculum.tracked_paths = True
     messages = []
     tr = Trainer(cfg, scene, log=messages.append)
-    found = P.moving_paths(scene)
+    found = P.tracked_paths(scene).moving
     motion = tr.model.motion
     assert motion.count == len(found) >= 2, messages
     assert not tr.window.enabled and any("paths tracked in the thermal frames" in m for m in messages)

@@ -115,6 +115,8 @@ def init_gaussians(points: torch.Tensor, colors: torch.Tensor, temperatures: tor
         params["dynamic_logit"] = torch.full((m,), cfg.basis_gate_init) if gates is None else gates.float().clone()
     if cfg.geometry_gate_init is not None and cfg.deformation != "none":
         params["geometry_logit"] = torch.full((m,), float(cfg.geometry_gate_init))
+    if cfg.hold_in_place and cfg.deformation != "none":
+        params["in_place"] = torch.zeros(m)     # 1: held in place (set by the trainer)
     if cfg.motion_split and cfg.deformation != "none":
         params["dynamic"] = (dynamic if dynamic is not None else torch.ones(m)).float()   # 1: may move
     return params

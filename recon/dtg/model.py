@@ -23,7 +23,7 @@ from recon.dtg.motion import MotionBases, apply_motion
 from recon.dtg.time_embedding import TimeEmbedding, lerp_rows
 
 GEOMETRY = ("means", "quats", "log_scales")
-NOT_LEARNED = ("dynamic", "motion_basis")      # per-Gaussian state the trainer sets (densification still carries it)
+NOT_LEARNED = ("dynamic", "motion_basis", "in_place")      # per-Gaussian state the trainer sets (densification still carries it)
 
 
 def added(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -110,14 +110,21 @@ class DTGModel(nn.Module):
             return None
         return self.dynamic_gate() * (self.gaussians["motion_basis"] > 0)
 
-    def geometry_gate(self, stage: str) -> torch.Tensor | None:
+    def geometry_gate(self, stage: str, progress: float = 1.0) -> torch.Tensor | None:
         """(N,) what a stage's network geometry residuals are multiplied by: the bodies' gate
         (``body_geometry_gate``) times each Gaussian's learned gate sigmoid(geometry_logit)
-        (ModelConfig.geometry_gate_init, priced by PriorConfig.geometry_gate); None for neither."""
+        (ModelConfig.geometry_gate_init, priced by PriorConfig.geometry_gate), zero for the Gaussians
+        held in place (ModelConfig.hold_in_place); None for none of these."""
         gate = self.body_geometry_gate(stage)
         if "geometry_logit" in self.gaussians and self.moves_geometry(stage):
             learned = torch.sigmoid(self.gaussians["geometry_logit"])
             gate = learned if gate is None else gate * learned
+        if "in_place" in self.gaussians and self.moves_geometry(stage):
+            free = 1 - self.gaussians["in_place"]
+            gate = free if gate is None else gate * free
+        if progress < self.cfg.geometry_from and "motion_basis" in self.gaussians and self.moves_geometry(stage):
+            bodies = (self.gaussians["motion_basis"] > 0).float()     # the rest wait (geometry_on)
+            gate = bodies if gate is None else gate * bodies
         return gate
 
     def motion_stage(self) -> str | None:
@@ -144,7 +151,7 @@ class DTGModel(nn.Module):
             key = embedding_key(stage)
             res = self.deformers[stage](self.time_embedding(t, progress), self.gaussians[key][index])
             moved = res["means"]
-            gate = self.geometry_gate(stage)
+            gate = self.geometry_gate(stage, progress)
             if gate is not None:
                 moved = moved * gate[index, None]
         if "trajectory" in self.gaussians:
@@ -160,8 +167,10 @@ class DTGModel(nn.Module):
         return means
 
     def geometry_on(self, progress: float) -> bool:
-        """Whether the networks' geometry residuals apply at this progress (ModelConfig.geometry_from)."""
-        return progress >= self.cfg.geometry_from
+        """Whether the networks' geometry residuals apply at this progress (ModelConfig.geometry_from):
+        with bodies always, their members' from the start and the others' from geometry_from
+        (geometry_gate)."""
+        return progress >= self.cfg.geometry_from or "motion_basis" in self.gaussians
 
     def dynamic_gate(self, index: torch.Tensor | slice = slice(None)) -> torch.Tensor:
         """(N,) or (S,) how much each Gaussian may move (needs a static/dynamic split)."""
@@ -199,7 +208,7 @@ class DTGModel(nn.Module):
                 if first is None and (not self.moves_geometry("rgb") or not self.geometry_on(progress)):
                     first = {}         # F_rgb moves no geometry (yet): nothing to add
                 if first is None:      # what the RGB stage's render applied (its gates too)
-                    rgb_gate = self.geometry_gate("rgb")
+                    rgb_gate = self.geometry_gate("rgb", progress)
                     first = {k: v if rgb_gate is None else v * rgb_gate[:, None]
                              for k, v in self.stage_residuals("rgb", t, progress).items() if k in GEOMETRY}
                 if not cfg.thermal_grad_to_rgb_deformation:
@@ -246,7 +255,7 @@ class DTGModel(nn.Module):
                 return torch.nonzero(routed).view(-1) if rows is None else rows[routed.index_select(0, rows)]
             res = {} if later else self.stage_residuals(stage, t, progress, rows=drawn(rows))
             own = {k: res[k] for k in GEOMETRY if k in res} if self.geometry_on(progress) else {}
-            gate = self.geometry_gate(stage)
+            gate = self.geometry_gate(stage, progress)
             if gate is not None:
                 own = {k: v * gate[:, None] for k, v in own.items()}
             geo, applied = place(own)
@@ -297,6 +306,7 @@ def check_params(cfg: ModelConfig, params: dict[str, torch.Tensor]) -> None:
     expected += ["motion_basis"] if cfg.motion_bases and cfg.deformation != "none" else []
     expected += ["geometry_logit"] if cfg.geometry_gate_init is not None and cfg.deformation != "none" else []
     expected += ["dynamic"] if cfg.motion_split and cfg.deformation != "none" else []
+    expected += ["in_place"] if cfg.hold_in_place and cfg.deformation != "none" else []
     n = params["means"].shape[0]
     for key in expected:
         if key not in params:

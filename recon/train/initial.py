@@ -15,7 +15,7 @@ from recon.dtg.points import (changing_points, colour_seen_fraction, initial_tem
                                sample_views, transient_points)
 from recon.scene import Scene
 from recon.train.anchors import DepthAnchors, find_anchors
-from recon.train.paths import TrackedPath, moving_paths
+from recon.train.paths import TrackedPath, on_still_blobs, tracked_paths
 from recon.sfm import interpolated_points, points_from_frames
 
 
@@ -111,12 +111,20 @@ def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log
         bases = False
     dynamic = changing_points(scene, pts, m.split_rgb, m.split_kelvin, m.split_fraction) \
         if m.motion_split or bases else None
+    tracks = None
+    if "thermal" in m.modalities and ((bases and cfg.curriculum.tracked_paths) or m.hold_in_place):
+        tracks = tracked_paths(scene, cfg.paths)
+    if dynamic is not None and m.hold_in_place and tracks is not None and tracks.still:
+        in_place = on_still_blobs(scene, tracks.still, pts)     # they change temperature, not place
+        log(f"{int((dynamic & in_place).sum())} initial points that see a changing scene lie on a still hot "
+            f"or cold blob: they stay static")
+        dynamic &= ~in_place
     if dynamic is not None:
         log(f"static/dynamic split: {int(dynamic.sum())} of {len(pts)} initial points see a "
             f"changing scene and may move")
     basis, pivots, paths = None, None, []
-    if bases and cfg.curriculum.tracked_paths and "thermal" in m.modalities:
-        paths = moving_paths(scene, cfg.paths)
+    if bases and cfg.curriculum.tracked_paths and tracks is not None:
+        paths = tracks.moving
     if paths:
         pts, rgb, dynamic, basis, pivots = _tracked_bodies(cfg, scene, pts, rgb, dynamic, paths, log)
     elif bases:

@@ -242,13 +242,19 @@ def travel(path: TrackedPath, samples: int = 41) -> float:
     return float((p - p.mean(0)).norm(dim=1).max())
 
 
-def moving_paths(scene, settings: PathConfig | None = None) -> list[TrackedPath]:
-    """The paths of the moving hot or cold objects the thermal training frames show (settings:
-    TrainConfig.paths; None: the defaults)."""
+@dataclass
+class Tracks:
+    moving: list[TrackedPath]     # one path per moving object
+    still: list[TrackedPath]      # hot or cold things in one place (every contrast level's fit)
+
+
+def tracked_paths(scene, settings: PathConfig | None = None) -> Tracks:
+    """The paths of the hot or cold objects the thermal training frames show, moving and still
+    (settings: TrainConfig.paths; None: the defaults)."""
     settings = settings or PathConfig()
     views = [(t, scene.views_at("thermal", t)[0]) for t in scene.times if scene.views_at("thermal", t)]
     if len(views) < settings.min_frames:
-        return []
+        return Tracks([], [])
     frames = []
     for t, view in views:
         target, valid = scene.target(view)
@@ -270,7 +276,31 @@ def moving_paths(scene, settings: PathConfig | None = None) -> list[TrackedPath]
             path = fit_track([b for t, b in path.seen.items() if t not in merged], cameras, up, settings)
         if path is not None and moves(path):
             moving.append(path)
-    return distinct(moving)
+    return Tracks(distinct(moving), still)
+
+
+def on_still_blobs(scene, still: list[TrackedPath], points: torch.Tensor, share: float = 0.5) -> torch.Tensor:
+    """(P,) bool: which points (P, 3) project onto a still path's blob in at least `share` of that
+    path's fitted frames where they lie in front of the thermal camera and inside its image: the
+    surface of a thing that heats or cools in place (a hot plate, a cooling cup) and what lies
+    right behind it."""
+    pts = points.double().numpy()
+    out = np.zeros(len(pts), dtype=bool)
+    for path in still:
+        hits = np.zeros(len(pts))
+        shown = np.zeros(len(pts))
+        for t, blob in path.seen.items():
+            camera = scene.views_at("thermal", t)[0].camera
+            p = pts @ projection(camera)[:, :3].T + projection(camera)[:, 3]       # (P, 3)
+            depth = p[:, 2]
+            xy = np.floor(p[:, :2] / np.where(depth > 1e-6, depth, 1e-6)[:, None]).astype(np.int64)
+            inside = (depth > 1e-6) & (xy[:, 0] >= 0) & (xy[:, 1] >= 0) & (xy[:, 0] < camera.width) & (xy[:, 1] < camera.height)
+            on = np.zeros(camera.width * camera.height, dtype=bool)
+            on[blob.pixels] = True
+            shown += inside
+            hits += inside & on[np.where(inside, xy[:, 1] * camera.width + xy[:, 0], 0)]
+        out |= (shown > 0) & (hits >= share * shown)
+    return torch.from_numpy(out)
 
 
 def merged_times(path: TrackedPath, still: list[TrackedPath]) -> set[float]:

@@ -32,6 +32,7 @@ from recon.train.curriculum import TimeWindow, continue_beyond, frames_at, place
 from recon.train.guard import DivergenceGuard, Event, TrainingDiverged, median_motion, nonfinite_parameter
 from recon.train.holdout import holdout_psnr, holdout_views
 from recon.train.anchors import anchor_loss
+from recon.train.paths import on_still_blobs, tracked_paths
 from recon.train.initial import body_gaussians, depth_anchors, held_points, initial_model, warm_up_iterations
 from recon.train.discover import DiscoverSettings, group_bodies, on_moving_object
 from recon.dtg.motion import MotionBases, body_radii
@@ -76,6 +77,8 @@ class Trainer:
             self.log(f"depth anchors: {static} of static points and {moving} of moving ones over "
                      f"{len(self.anchors.by_view)} RGB views")
         check_params(cfg.model, dict(self.model.gaussians))
+        self.still = self._still_paths()
+        self._hold_in_place()
         self.optimizer = build_optimizer(self.cfg, self.model, self.extent)
         if not cfg.densify.max_gaussians:
             v = next(iter(scene.train[cfg.model.modalities[0]]))
@@ -122,6 +125,7 @@ class Trainer:
         When the time steps grew at least twice as dense, the time embedding is refined to match."""
         self.scene = scene
         self.holdout = self._holdout_views()
+        self.still = self._still_paths()
         self.window = TimeWindow(self.cfg.curriculum, scene.times, self.cfg.iterations)
         if self.cfg.model.deformation != "none":
             want = time_rows(self.cfg.model, scene.steps_per_unit_time())[1]
@@ -130,6 +134,25 @@ class Trainer:
             if factor >= 2:
                 self.refine_time(factor)
                 self.model.n_times = scene.steps_per_unit_time()
+
+    def _still_paths(self) -> list:
+        """The still hot or cold things of the thermal frames, when Gaussians on them are held in
+        place (ModelConfig.hold_in_place)."""
+        if "in_place" not in self.model.gaussians:
+            return []
+        return tracked_paths(self.scene, self.cfg.paths).still
+
+    @torch.no_grad()
+    def _hold_in_place(self) -> None:
+        """Flag the Gaussians whose canonical place lies on a still blob, bodies' members apart: no
+        network moves them. Run whenever densification changed the Gaussians."""
+        g = self.model.gaussians
+        if "in_place" not in g:
+            return
+        flags = on_still_blobs(self.scene, self.still, g["means"])
+        if "motion_basis" in g:
+            flags &= g["motion_basis"] == 0
+        g["in_place"].copy_(flags.float())
 
     def extend_time(self, factor: int) -> None:
         """The time axis covers a `factor` times longer span (recon/train/timeline.py)."""
@@ -343,6 +366,7 @@ class Trainer:
         report = self.strategy.step(self.model.gaussians, self.optimizer, self.iteration, p)
         if report:
             stats.update(report)
+            self._hold_in_place()
         if self.strategy.reset_opacities(self.model.gaussians, self.optimizer, p):
             stats["opacity_reset"] = 1
             self.guard.reset(holdout=True)     # the loss and held-out error jump by design
