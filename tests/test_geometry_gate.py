@@ -1,12 +1,11 @@
 """ModelConfig.geometry_gate_init / PriorConfig.geometry_gate: a learned gate per Gaussian on the
 thermal network's geometry residuals, and its price."""
-import numpy as np
 import torch
 
 from recon.data import load_dataset
 from recon.data.simulate import SimulateConfig, simulate_dataset
 from recon.scene import Scene
-from recon.train.paths import projection
+from recon.dtg.points import project
 from recon.train.trainer import Trainer
 from tests.test_train import small_cfg, tiny
 
@@ -89,13 +88,11 @@ def test_gaussians_on_a_still_hot_blob_are_held_in_place(tmp_path_factory):
     flags = g["in_place"] > 0
     assert tr.still and 10 <= int(flags.sum()) < 0.2 * len(flags)
     view = scene.train["thermal"][-1]                       # the plate at its hottest
-    labels = scene.dataset.mask(view.frame)
-    proj = projection(view.camera)
-    p = g["means"].detach().double().numpy() @ proj[:, :3].T + proj[:, 3]
-    xy = np.floor(p[:, :2] / p[:, 2:]).astype(int)
-    on_plate = labels[xy[:, 1].clip(0, view.camera.height - 1), xy[:, 0].clip(0, view.camera.width - 1)] == 1
-    assert on_plate[flags.numpy()].mean() > 0.8          # measured 30 of 32
-    assert flags.numpy()[on_plate].mean() > 0.6          # 30 of 35
+    labels = torch.from_numpy(scene.dataset.mask(view.frame).copy())
+    u, v, _, _ = project(view.camera, g["means"].detach())
+    on_plate = labels[v.clamp(0, view.camera.height - 1), u.clamp(0, view.camera.width - 1)] == 1
+    assert on_plate[flags].float().mean() > 0.8          # measured 30 of 32
+    assert flags[on_plate].float().mean() > 0.6          # 30 of 35
     n = tr.model.num_gaussians
     while tr.model.num_gaussians == n:                 # until densification adds Gaussians
         tr.step()

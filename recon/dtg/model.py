@@ -114,7 +114,8 @@ class DTGModel(nn.Module):
         """(N,) what a stage's network geometry residuals are multiplied by: the bodies' gate
         (``body_geometry_gate``) times each Gaussian's learned gate sigmoid(geometry_logit)
         (ModelConfig.geometry_gate_init, priced by PriorConfig.geometry_gate), zero for the Gaussians
-        held in place (ModelConfig.hold_in_place); None for none of these."""
+        held in place (ModelConfig.hold_in_place) and, before ModelConfig.geometry_from, for those
+        outside bodies; None for none of these."""
         gate = self.body_geometry_gate(stage)
         if "geometry_logit" in self.gaussians and self.moves_geometry(stage):
             learned = torch.sigmoid(self.gaussians["geometry_logit"])

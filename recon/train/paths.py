@@ -35,6 +35,7 @@ import torch
 from scipy.optimize import least_squares
 
 from recon.config import PathConfig
+from recon.dtg.points import project
 
 
 @dataclass
@@ -284,23 +285,19 @@ def on_still_blobs(scene, still: list[TrackedPath], points: torch.Tensor, share:
     path's fitted frames where they lie in front of the thermal camera and inside its image: the
     surface of a thing that heats or cools in place (a hot plate, a cooling cup) and what lies
     right behind it."""
-    pts = points.double().numpy()
-    out = np.zeros(len(pts), dtype=bool)
+    out = torch.zeros(len(points), dtype=torch.bool)
     for path in still:
-        hits = np.zeros(len(pts))
-        shown = np.zeros(len(pts))
+        hits = torch.zeros(len(points))
+        shown = torch.zeros(len(points))
         for t, blob in path.seen.items():
             camera = scene.views_at("thermal", t)[0].camera
-            p = pts @ projection(camera)[:, :3].T + projection(camera)[:, 3]       # (P, 3)
-            depth = p[:, 2]
-            xy = np.floor(p[:, :2] / np.where(depth > 1e-6, depth, 1e-6)[:, None]).astype(np.int64)
-            inside = (depth > 1e-6) & (xy[:, 0] >= 0) & (xy[:, 1] >= 0) & (xy[:, 0] < camera.width) & (xy[:, 1] < camera.height)
-            on = np.zeros(camera.width * camera.height, dtype=bool)
-            on[blob.pixels] = True
+            u, v, _, inside = project(camera, points)
+            on = torch.zeros(camera.width * camera.height, dtype=torch.bool)
+            on[torch.from_numpy(blob.pixels)] = True
             shown += inside
-            hits += inside & on[np.where(inside, xy[:, 1] * camera.width + xy[:, 0], 0)]
+            hits += inside & on[torch.where(inside, v * camera.width + u, 0)]
         out |= (shown > 0) & (hits >= share * shown)
-    return torch.from_numpy(out)
+    return out
 
 
 def merged_times(path: TrackedPath, still: list[TrackedPath]) -> set[float]:
