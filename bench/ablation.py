@@ -22,10 +22,11 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+import recon  # noqa: E402,F401  (before torch: its OpenMP wait policy, as `recon run` has it)
+import torch  # noqa: E402
 sys.path.insert(0, str(ROOT / "bench"))
 
 from recon.config import make_config  # noqa: E402

@@ -42,10 +42,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+import recon  # noqa: E402,F401  (before torch: its OpenMP wait policy, as `recon run` has it)
+import torch  # noqa: E402
 
 from recon.batch.jobs import Job, parse_seeds, read_json  # noqa: E402
 from recon.batch.ray_runner import run_batch  # noqa: E402

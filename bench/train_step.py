@@ -36,10 +36,10 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-import torch
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import recon  # noqa: E402,F401  (before torch: its OpenMP wait policy, as `recon run` has it)
+import torch  # noqa: E402
 from recon.config import make_config  # noqa: E402
 from recon.data import load_dataset  # noqa: E402
 from recon.data.simulate import SimulateConfig, simulate_dataset  # noqa: E402
