@@ -438,6 +438,10 @@ class TrainConfig:
     # factor blocks from p on (coarse to fine; resolution.coarse_to_fine builds one). Full size: 1.
     resolution: tuple = ((0.0, 1),)
     threads: int = 0                  # 0: torch's default
+    # Train on one thread while other processes keep more than 0.4 of a core busy, on `threads`
+    # again below 0.2 (recon/train/cores.py): on 2 cores with one taken, a 160x120 step took 29 ms
+    # on one thread against 44 on two (bench/results/wait-policy/).
+    share_cores: bool = True
 
 
 def _preset(**model) -> dict:

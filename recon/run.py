@@ -249,7 +249,8 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     overrides = {k: v for k, v in {"iterations": args.iterations, "minutes": args.minutes,
                                    "seed": args.seed, "threads": args.threads,
-                                   "checkpoint_every": args.checkpoint_every}.items() if v is not None}
+                                   "checkpoint_every": args.checkpoint_every,
+                                   "share_cores": False if args.fixed_threads else None}.items() if v is not None}
     log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
     live = LiveRenderService() if getattr(args, "serve", False) else None     # the page's viewer panel
     handle = serve_from_args(args, run_dir=out, session_dir=inp if kind == "session" else None, renderer=live)
@@ -365,6 +366,9 @@ def register(sub) -> None:
     p.add_argument("--frames", type=positive_int,
                    help=f"a session's time steps (see `recon prepare`; default {PrepareOptions().frames})")
     p.add_argument("--seed", type=int)
-    p.add_argument("--threads", type=positive_int, help="CPU threads (default: all)")
+    p.add_argument("--threads", type=positive_int,
+                   help="CPU threads at most (default: all); one while other processes keep a core busy")
+    p.add_argument("--fixed-threads", action="store_true",
+                   help="always --threads, even while other processes keep cores busy")
     add_serve_arguments(p)
     p.set_defaults(func=run)

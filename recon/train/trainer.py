@@ -27,6 +27,7 @@ from recon.render import inference_masks, render
 from recon.scene import Scene
 from recon.train import timeline
 from recon.train.checkpoint import read_checkpoint, write_checkpoint
+from recon.train.cores import ThreadShare, threads_asked
 from recon.train.resolution import downscale, factor_at, random_crop
 from recon.train.curriculum import TimeWindow, continue_beyond, frames_at, place_bases
 from recon.train.guard import DivergenceGuard, Event, TrainingDiverged, median_motion, nonfinite_parameter
@@ -60,8 +61,8 @@ class Trainer:
         missing = [m for m in cfg.model.modalities if not scene.train[m]]
         if missing:
             raise ValueError(f"method {cfg.method} trains {missing} but the dataset has no such training frames")
-        if cfg.threads:
-            torch.set_num_threads(cfg.threads)
+        torch.set_num_threads(cfg.threads or threads_asked())
+        self.cores = ThreadShare(torch.get_num_threads()) if cfg.share_cores else None
         retain_freed_memory()       # a step's large tensors are reused, not page-faulted in again
         torch.manual_seed(cfg.seed)
         self.gen = torch.Generator().manual_seed(cfg.seed)
@@ -486,6 +487,9 @@ class Trainer:
             self._rollback(f"parameter {bad} is not finite")
             return {}
         self._window = (getattr(self, "_window", []) + [time.perf_counter() - t0])[-50:]
+        if self.cores is not None and self.cores.update() is not None and self.cores.switches <= 4:
+            self.log(f"threads: {self.cores.current} of {self.cores.most} (other processes keep "
+                     f"{self.cores.others:.1f} cores busy)" + ("; further changes not logged" if self.cores.switches == 4 else ""))
         self._last = {**getattr(self, "_last", {}), **{k: v for k, v in stats.items() if k.startswith("loss_")}}
         it = self.iteration
         # While the time window grows, each new time step raises the loss by design: the loss
