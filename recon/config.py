@@ -440,7 +440,8 @@ class TrainConfig:
     threads: int = 0                  # 0: torch's default
     # Train on one thread while other processes keep more than 0.4 of a core busy, on `threads`
     # again below 0.2 (recon/train/cores.py): on 2 cores with one taken, a 160x120 step took 29 ms
-    # on one thread against 44 on two (bench/results/wait-policy/).
+    # on one thread against 44 on two (bench/results/wait-policy/). Results then depend on the
+    # machine's load (torch's sums depend on the thread count); RECON_FIXED_THREADS=1 turns it off.
     share_cores: bool = True
 
 

@@ -369,6 +369,7 @@ def register(sub) -> None:
     p.add_argument("--threads", type=positive_int,
                    help="CPU threads at most (default: all); one while other processes keep a core busy")
     p.add_argument("--fixed-threads", action="store_true",
-                   help="always --threads, even while other processes keep cores busy")
+                   help="always --threads, even while other processes keep cores busy: the same result whatever "
+                        "else runs (torch's sums depend on the thread count); also RECON_FIXED_THREADS=1")
     add_serve_arguments(p)
     p.set_defaults(func=run)

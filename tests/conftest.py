@@ -1,6 +1,12 @@
 """Shared fixtures."""
+import os
+
 import pytest
 import torch
+
+# Training in tests (and in the processes they start) keeps its thread count whatever else runs:
+# torch's float sums depend on it, and tests compare numbers (recon/train/cores.py).
+os.environ["RECON_FIXED_THREADS"] = "1"
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ if sys.argv[1] == "retain":
     assert retain_freed_memory()
 rng = random.Random(0)
 faults = 0
-for it in range(30):
+for it in range(60):
     before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     live = []
     for _ in range(12):                      # a step's mix: 0.25-20 MB tensors, some freed early
@@ -20,7 +20,7 @@ for it in range(30):
         if rng.random() < 0.4:
             live.pop(rng.randrange(len(live)))
     del live
-    if it >= 10:                             # after the heap has grown to the step's peak
+    if it >= 30:                             # after the heap has grown to the step's peak
         faults += resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
 print(faults)
 """
@@ -35,6 +35,8 @@ def _faults(mode: str) -> int:
 def test_freed_tensors_are_reused_without_page_faults():
     default, retained = _faults("default"), _faults("retain")
     # this churn touches ~60 MB per iteration; glibc's defaults unmap and trim much of it
-    # (23k faults over 20 iterations here), the retained heap reuses it
-    assert default > 5000, default
-    assert retained < default / 4, (default, retained)
+    # (74k-153k faults over the last 30 of 60 iterations here), the retained heap reuses it
+    # (1.9k-3.0k: where the heap lands varies from run to run; over 10 + 20 iterations the
+    # retained count reached 6.8k against 23k once, in CI)
+    assert default > 20000, default
+    assert retained < default / 8, (default, retained)

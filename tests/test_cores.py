@@ -7,7 +7,8 @@ import time
 import pytest
 import torch
 
-from recon.train.cores import ThreadShare, machine_busy_s, others_cores, threads_asked, threads_for
+from recon.train.cores import (ThreadShare, machine_busy_s, others_cores, sharing_allowed, threads_asked,
+                               threads_for)
 
 
 def test_threads_for_drops_on_a_taken_core_and_returns_only_when_it_is_free():
@@ -23,6 +24,12 @@ def test_threads_for_drops_on_a_taken_core_and_returns_only_when_it_is_free():
     assert threads_for(2.5, 5, 8, 8) == 5
     assert threads_for(0.1, 5, 8, 8) == 8
     assert threads_for(0.0, 4, 4, 8) == 4          # never above what was asked
+
+
+def test_the_suite_trains_on_fixed_threads_and_a_run_shares_by_default(monkeypatch):
+    assert not sharing_allowed()                 # tests/conftest.py: numbers must not follow the load
+    monkeypatch.delenv("RECON_FIXED_THREADS")
+    assert sharing_allowed()
 
 
 def test_others_cores_is_the_busy_time_this_process_did_not_use():

@@ -60,6 +60,15 @@ def threads_for(others: float, current: int, most: int, cpus: int, down_at: floa
     return max(current, fit(up_at))
 
 
+FIXED_ENV = "RECON_FIXED_THREADS"    # =1: never share (results then do not depend on the machine's load)
+
+
+def sharing_allowed() -> bool:
+    """False where the environment asks for fixed threads (the test suite does: torch's float sums
+    depend on the thread count, and tests compare numbers)."""
+    return os.environ.get(FIXED_ENV, "") != "1"
+
+
 def threads_asked() -> int:
     """torch's thread count as its caller set it: if a ThreadShare lowered it (a trainer that has
     ended, say) and it is still as lowered, the count before that."""

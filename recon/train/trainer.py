@@ -27,7 +27,7 @@ from recon.render import inference_masks, render
 from recon.scene import Scene
 from recon.train import timeline
 from recon.train.checkpoint import read_checkpoint, write_checkpoint
-from recon.train.cores import ThreadShare, threads_asked
+from recon.train.cores import ThreadShare, sharing_allowed, threads_asked
 from recon.train.resolution import downscale, factor_at, random_crop
 from recon.train.curriculum import TimeWindow, continue_beyond, frames_at, place_bases
 from recon.train.guard import DivergenceGuard, Event, TrainingDiverged, median_motion, nonfinite_parameter
@@ -62,7 +62,7 @@ class Trainer:
         if missing:
             raise ValueError(f"method {cfg.method} trains {missing} but the dataset has no such training frames")
         torch.set_num_threads(cfg.threads or threads_asked())
-        self.cores = ThreadShare(torch.get_num_threads()) if cfg.share_cores else None
+        self.cores = ThreadShare(torch.get_num_threads()) if cfg.share_cores and sharing_allowed() else None
         retain_freed_memory()       # a step's large tensors are reused, not page-faulted in again
         torch.manual_seed(cfg.seed)
         self.gen = torch.Generator().manual_seed(cfg.seed)
