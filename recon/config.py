@@ -194,10 +194,6 @@ class LossConfig:
     embedding_knn_sample: int = 1024     # Gaussians per step that pay the k-NN term
     embedding_knn_falloff: float = 2000.0  # w = exp(-falloff d^2) for a unit-size scene; scaled by extent^2
     time_smoothness: float = 1e-3    # second difference over time-embedding rows (a real one)
-    # A price on each Gaussian's smallest scale over its middle one (discs, not needles): a far
-    # floor seen at grazing angles smears into streaks from a rig outside the sweep, where the top
-    # third of the image holds 41-65 % of the RGB error (bench/results/flatten/). Off: a probe.
-    flatten: float = 0.0
     # Composite this fraction of the RGB training renders over a random colour instead of the
     # learned background: a half-transparent surface then costs loss, so surfaces become opaque
     # instead of letting the background through in novel views (+1.7 dB RGB on the simulator's

@@ -323,11 +323,6 @@ class Trainer:
             climb = model.motion.climb(self.up, self.extent)
             reg = reg + self.cfg.priors.level_paths * climb
             stats["basis_climb"] = float(climb.detach())
-        if cfg.flatten > 0:
-            ordered = model.gaussians["log_scales"].sort(dim=1).values
-            flat = torch.exp(ordered[:, 0] - ordered[:, 1]).mean()
-            reg = reg + cfg.flatten * flat
-            stats["flat"] = float(flat.detach())
         if self.cfg.model.deformation != "none" and cfg.time_smoothness > 0:
             tv = model.time_embedding.temporal_smoothness()
             reg = reg + cfg.time_smoothness * tv
