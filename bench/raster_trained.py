@@ -37,12 +37,13 @@ FRAMES = (0, 10, 20, 30)
 STAGES = ("binning", "composite", "composite_backward", "total")
 
 
-def load_native(checkout: Path):
-    """The `_native` extension built in checkout, loaded under its own package name beside ours."""
-    found = sorted((checkout / "recon" / "splat").glob("_native*.so"))
+def load_native(checkout: Path, package: str = "splat"):
+    """recon/<package>/_native built in checkout, loaded under its own package name beside ours."""
+    found = sorted((checkout / "recon" / package).glob("_native*.so"))
     if not found:
-        raise SystemExit(f"raster_trained: {checkout}/recon/splat has no built _native*.so")
-    spec = importlib.util.spec_from_file_location(f"against_{abs(hash(str(checkout)))}._native", found[0])
+        raise SystemExit(f"{checkout}/recon/{package} has no built _native*.so "
+                         "(run `python setup.py build_ext --inplace` there)")
+    spec = importlib.util.spec_from_file_location(f"against_{package}_{abs(hash(str(checkout)))}._native", found[0])
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

@@ -15,7 +15,6 @@ alike. Writes per-round ms per step, the medians, and in how many rounds this bu
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import statistics
 import sys
@@ -25,18 +24,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
-
-
-def load_extension(checkout: Path, package: str):
-    """recon/<package>/_native*.so built in checkout, loaded under a name of its own beside ours."""
-    found = sorted((checkout / "recon" / package).glob("_native*.so"))
-    if not found:
-        raise SystemExit(f"step_ab: {checkout}/recon/{package} has no built _native*.so "
-                         "(run `python setup.py build_ext --inplace` there)")
-    spec = importlib.util.spec_from_file_location(f"against_{package}_{abs(hash(str(checkout)))}._native", found[0])
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def main() -> int:
@@ -51,24 +38,15 @@ def main() -> int:
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
 
-    from recon.data import load_dataset
+    from raster_trained import load_native
     from recon.eval import metrics
-    from recon.scene import Scene
     from recon.splat import _functions
-    from recon.train.trainer import Trainer
-    from train_step import warm_images
+    from train_step import resume_held, warm_images
 
     builds = {"this": (_functions._native, metrics._native),
-              "against": (load_extension(args.against, "splat"), load_extension(args.against, "eval"))}
-    data = Path(json.loads((args.from_run / "scene.json").read_text())["dataset"])
-    scene = Scene(load_dataset(data))
-    warm_images(scene)
-    trainer = Trainer.resume(args.from_run / "checkpoints" / "latest.pt", scene, log=lambda _: None,
-                             threads=args.threads)
-    p = min(trainer.progress(), 0.99)
-    trainer.progress_fn = lambda _: p
-    if args.crop is not None:
-        trainer.cfg.crop = args.crop
+              "against": (load_native(args.against, "splat"), load_native(args.against, "eval"))}
+    trainer, p = resume_held(args.from_run, args.threads, crop=args.crop)
+    warm_images(trainer.scene)
     for _ in range(3):
         trainer.step()
     ms = {k: [] for k in builds}

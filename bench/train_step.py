@@ -124,6 +124,18 @@ def measure_run(run: Path, progress: float | None, steps: int, warmup: int, thre
     """Time a trained run as it ended (RUN/checkpoints/latest.pt on the dataset RUN/scene.json names),
     the schedule held at `progress` (None: where the run ended, at most 0.99), on windows of `crop`
     of each side (1: whole frames; None: as the run trained)."""
+    trainer, p = resume_held(run, threads, progress, crop)
+    cam = trainer.scene.train["thermal"][0].camera
+    row = timed_steps(trainer, f"{trainer.cfg.method} ({run.parent.name}/{run.name}, p {p:.2f})", f"{cam.width}x{cam.height}",
+                      trainer.cfg.crop, threads, steps, warmup)
+    return {**row, "run": str(run), "progress": p}
+
+
+def resume_held(run: Path, threads: int, progress: float | None = None,
+                crop: float | None = None) -> tuple[Trainer, float]:
+    """RUN/checkpoints/latest.pt resumed on the dataset RUN/scene.json names, the schedule held at
+    `progress` (None: where the run ended, at most 0.99), on windows of `crop` of each side (None:
+    as the run trained). Returns the trainer and the progress it is held at."""
     data = Path(json.loads((run / "scene.json").read_text())["dataset"])
     if not (data / "transforms.json").exists():
         raise SystemExit(f"error: {run / 'scene.json'} names the dataset {data}, which is not there (moved?)")
@@ -133,10 +145,7 @@ def measure_run(run: Path, progress: float | None, steps: int, warmup: int, thre
     trainer.progress_fn = lambda _: p
     if crop is not None:
         trainer.cfg.crop = crop
-    cam = scene.train["thermal"][0].camera
-    row = timed_steps(trainer, f"{trainer.cfg.method} ({run.parent.name}/{run.name}, p {p:.2f})", f"{cam.width}x{cam.height}",
-                      trainer.cfg.crop, threads, steps, warmup)
-    return {**row, "run": str(run), "progress": p}
+    return trainer, p
 
 
 def warm_images(scene: Scene) -> None:
