@@ -24,6 +24,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import recon  # noqa: E402,F401  (before torch: its OpenMP wait policy, as `recon run` has it)
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -18,6 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import recon  # noqa: E402,F401  (before torch: its OpenMP wait policy, as `recon run` has it)
 import torch  # noqa: E402
 
 from recon.dtg.neighbours import knn_indices  # noqa: E402

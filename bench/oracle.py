@@ -28,6 +28,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+import recon  # noqa: E402,F401  (before torch: its OpenMP wait policy, as `recon run` has it)
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -451,6 +451,7 @@ WORKERS = {
 def worker(args) -> None:
     sys.path.insert(0, str(ROOT))
     sys.path.insert(0, str(ROOT / "bench"))
+    import recon  # noqa: F401  (before torch: its OpenMP wait policy, as `recon run` has it)
     if args.peers_dir:
         sys.path.insert(0, args.peers_dir)
     import torch
