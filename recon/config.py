@@ -139,12 +139,6 @@ class ModelConfig:
     # RGB 17.26 -> 18.21 dB median, worst seed 12.38 -> 15.71, better on 7 of 8; inside within
     # +-0.3 dB per seed; 0.5-2 view widths graded alike without retraining.
     cull_off_view: float | None = 1.0
-    # Mip-Splatting's 3D smoothing filter (recon/dtg/mip.py): each Gaussian's covariance gains this
-    # x (depth / focal)^2 of the training view of its modality that sampled its place most finely,
-    # its opacity scaled to keep its integral (Mip-Splatting: 0.2). No Gaussian is then thinner than
-    # what a training pixel could see, so one fit to a far floor at a grazing angle cannot become a
-    # sliver that aliases from another direction. 0: off.
-    mip_filter: float = 0.0
     body_reach: float = 0.0          # a body's Gaussians stay within this x its farthest initial point
                                      # of its pivot (MotionBases.keep_within); 0: unbounded
     # A bias on the deformation's geometry outputs moves every Gaussian alike. Adam moves it by

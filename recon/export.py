@@ -7,7 +7,6 @@ from pathlib import Path
 import torch
 
 from recon.dtg import routing
-from recon.dtg.mip import MIP_KEYS, filtered
 from recon.dtg.model import DTGModel
 from recon.splat.ply import write_gaussians_ply
 
@@ -21,8 +20,7 @@ def model_bytes(model: DTGModel) -> int:
 def export_ply(model: DTGModel, path: Path) -> None:
     """Standard 3DGS layout for the canonical (time-independent) model. With RGB, f_dc/f_rest and
     opacity are the RGB ones; a thermal-only model writes its temperature as grey so any 3DGS
-    viewer shows something. With the 3D smoothing filter (ModelConfig.mip_filter) the main
-    modality's filter is baked into the scales and opacity; `opacity_thermal` stays unfiltered."""
+    viewer shows something."""
     g = {k: v.detach() for k, v in model.gaussians.items()}
     n = g["means"].shape[0]
     main = "rgb" if "rgb" in model.cfg.modalities else "thermal"
@@ -42,11 +40,7 @@ def export_ply(model: DTGModel, path: Path) -> None:
     for key in g:
         if key.startswith("embedding"):
             extra[key] = g[key]
-    log_scales, opacity = g["log_scales"], g[f"opacity_{main}"]
-    if MIP_KEYS[main] in g:     # the 3D smoothing filter baked in, as the model renders (as Mip-Splatting's export)
-        log_scales, alpha = filtered(log_scales, torch.sigmoid(opacity), g[MIP_KEYS[main]])
-        opacity = torch.logit(alpha.clamp(1e-6, 1 - 1e-6))
-    write_gaussians_ply(path, g["means"], g["quats"], log_scales, opacity, sh,
+    write_gaussians_ply(path, g["means"], g["quats"], g["log_scales"], g[f"opacity_{main}"], sh,
                         extra={k: v.cpu().numpy() for k, v in extra.items()})
 
 

@@ -8,8 +8,7 @@ an opacity logit ``opacity_m`` (N,), and the deformation embedding(s); routing l
 ``route_logits`` (N, 3) when routing is on; per-Gaussian trajectory knots ``trajectory``
 (N, K, 3) when ``trajectory_step`` is set; the static/dynamic gate logit ``dynamic_logit`` (N,)
 with ``dynamic_gate``; the static/dynamic flag ``dynamic`` (N,) with ``motion_split`` (not learned);
-the gate logit ``geometry_logit`` (N,) on the networks' geometry residuals with ``geometry_gate_init``;
-the 3D smoothing filter's variance ``mip_m`` (N,) per modality with ``mip_filter`` (not learned).
+the gate logit ``geometry_logit`` (N,) on the networks' geometry residuals with ``geometry_gate_init``.
 
 Everything that has one row per Gaussian lives in this dict, so densification and pruning
 (recon.dtg.strategy) handle a new attribute without any change.
@@ -21,7 +20,6 @@ import math
 import torch
 
 from recon.config import ModelConfig, RoutingConfig
-from recon.dtg.mip import MIP_KEYS
 from recon.dtg.neighbours import knn_mean_sq_dist
 
 SH_C0 = 0.28209479177387814
@@ -119,9 +117,6 @@ def init_gaussians(points: torch.Tensor, colors: torch.Tensor, temperatures: tor
         params["geometry_logit"] = torch.full((m,), float(cfg.geometry_gate_init))
     if cfg.hold_in_place and cfg.deformation != "none":
         params["in_place"] = torch.zeros(m)     # 1: held in place (set by the trainer)
-    if cfg.mip_filter:
-        for mod in cfg.modalities:
-            params[MIP_KEYS[mod]] = torch.zeros(m)     # the filter's variance (set by the trainer)
     if cfg.motion_split and cfg.deformation != "none":
         params["dynamic"] = (dynamic if dynamic is not None else torch.ones(m)).float()   # 1: may move
     return params

@@ -19,12 +19,11 @@ from torch import nn
 from recon.config import ModelConfig
 from recon.dtg.deformation import DeformationNet, geometry_outputs, modality_outputs
 from recon.dtg.gaussians import embedding_key, embedding_keys, sh_coeffs
-from recon.dtg.mip import MIP_KEYS, filtered
 from recon.dtg.motion import MotionBases, apply_motion
 from recon.dtg.time_embedding import TimeEmbedding, lerp_rows
 
 GEOMETRY = ("means", "quats", "log_scales")
-NOT_LEARNED = ("dynamic", "motion_basis", "in_place", *MIP_KEYS.values())      # per-Gaussian state the trainer sets (densification still carries it)
+NOT_LEARNED = ("dynamic", "motion_basis", "in_place")      # per-Gaussian state the trainer sets (densification still carries it)
 
 
 def added(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -271,9 +270,6 @@ class DTGModel(nn.Module):
         opacities = torch.sigmoid(opacity_logit)
         if mask is not None:
             opacities = opacities * mask
-        if MIP_KEYS[modality] in g:
-            geo = dict(geo)
-            geo["log_scales"], opacities = filtered(geo["log_scales"], opacities, g[MIP_KEYS[modality]])
         return {**geo, "opacities": opacities, "features": features, "geometry_residuals": applied}
 
     def state_for_checkpoint(self) -> dict:
@@ -312,7 +308,6 @@ def check_params(cfg: ModelConfig, params: dict[str, torch.Tensor]) -> None:
     expected += ["geometry_logit"] if cfg.geometry_gate_init is not None and cfg.deformation != "none" else []
     expected += ["dynamic"] if cfg.motion_split and cfg.deformation != "none" else []
     expected += ["in_place"] if cfg.hold_in_place and cfg.deformation != "none" else []
-    expected += [MIP_KEYS[m] for m in cfg.modalities] if cfg.mip_filter else []
     n = params["means"].shape[0]
     for key in expected:
         if key not in params:

@@ -19,7 +19,6 @@ from recon.alloc import retain_freed_memory
 from recon.config import TrainConfig, config_from_dict, config_to_dict
 from recon.dtg import routing
 from recon.dtg.gaussians import embedding_key
-from recon.dtg.mip import MIP_KEYS, sampling_variance
 from recon.dtg.losses import EmbeddingSmoothness, rgb_loss, thermal_loss, trimmed_l1
 from recon.dtg.model import DTGModel, check_params, time_rows
 from recon.dtg.priors import MotionPriors
@@ -42,8 +41,6 @@ from recon.dtg.strategy import append
 from recon.train.optim import build_optimizer, update_learning_rates
 from recon.train.progress import progress_line
 from recon.train.schedule import Schedule
-
-MIP_EVERY = 100     # iterations between the 3D filter's updates (Mip-Splatting's)
 
 
 class Trainer:
@@ -83,7 +80,6 @@ class Trainer:
         check_params(cfg.model, dict(self.model.gaussians))
         self.still = self._still_paths()
         self._hold_in_place()
-        self._set_mip_filter()
         self.optimizer = build_optimizer(self.cfg, self.model, self.extent)
         if not cfg.densify.max_gaussians:
             v = next(iter(scene.train[cfg.model.modalities[0]]))
@@ -158,17 +154,6 @@ class Trainer:
         if "motion_basis" in g:
             flags &= g["motion_basis"] == 0
         g["in_place"].copy_(flags.float())
-
-    @torch.no_grad()
-    def _set_mip_filter(self) -> None:
-        """The 3D smoothing filter's variance per Gaussian and modality (recon/dtg/mip.py), from the
-        canonical places and every training camera of that modality. Run whenever densification
-        changed the Gaussians and every MIP_EVERY iterations (Mip-Splatting: 100), as they move."""
-        g = self.model.gaussians
-        for m, key in MIP_KEYS.items():
-            if key in g:
-                cameras = [v.camera for v in self.scene.train[m]]
-                g[key].copy_(sampling_variance(g["means"], cameras, self.cfg.model.mip_filter))
 
     def extend_time(self, factor: int) -> None:
         """The time axis covers a `factor` times longer span (recon/train/timeline.py)."""
@@ -383,8 +368,6 @@ class Trainer:
         if report:
             stats.update(report)
             self._hold_in_place()
-        if report or self.iteration % MIP_EVERY == 0:
-            self._set_mip_filter()
         if self.strategy.reset_opacities(self.model.gaussians, self.optimizer, p):
             stats["opacity_reset"] = 1
             self.guard.reset(holdout=True)     # the loss and held-out error jump by design
@@ -426,7 +409,6 @@ class Trainer:
         basis = torch.cat([torch.full((len(mem),), b + 1) for b, mem in enumerate(found.members)])
         rows = body_gaussians(self.cfg, self.scene, pts[index], rgb[index], basis, found.center, self.gen)
         append(self.model.gaussians, self.optimizer, rows)
-        self._set_mip_filter()
         pivots = torch.stack([pts[mem].mean(0) for mem in found.members])
         radii = body_radii(pts[index], basis, pivots, self.cfg.model.body_reach)
         self._set_motion(MotionBases(pivots, self.model.n_times, radii))
