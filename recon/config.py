@@ -259,7 +259,16 @@ class PathConfig:
     min_area: float = 2e-4        # smallest blob, as a fraction of the frame's pixels (4 px at 160x120)
     max_area: float = 0.15        # larger regions are background (sky, a wall in the sun)
     whole: tuple[float, float] = (0.6, 1.6)   # a frame counts where the blob's area is within these
-                                  # multiples of the track's 25th percentile (not cut, not merged with another)
+                                  # multiples of the area typical there (not cut, not merged with another):
+    # the median of this many of the track's blobs before and after it (0: the track's 25th
+    # percentile), and within whole_track x that percentile. An object nearing the camera grows
+    # (family-inside 42's ball 122 -> 282 px): against the percentile alone its frames looked merged
+    # and it got no path, no body, 71 K off in its training views. Window 3, (0.6, 2.0) from
+    # 2026-12-04: held-out seeds at 3 min, thermal MAE inside 1.78 -> 1.65 K (7 of 8), moving region
+    # 13.19 -> 9.28 K; outside 2.05 -> 2.01 K, moving 18.24 -> 18.35 K, worst seed 7.64 -> 10.38 K
+    # (bench/results/whole-window; docs/training.md).
+    whole_window: int = 3
+    whole_track: tuple[float, float] = (0.6, 2.0)
     min_frames: int = 12          # whole frames a track needs (fewer: too little parallax to trust)
     knots: int = 11
     smoothness: float = 1.0       # weight of the knots' second differences (metres, per knot)
@@ -534,6 +543,7 @@ def config_to_dict(cfg: TrainConfig) -> dict:
 
 # Defaults that changed since runs were first written: a config without the key meant this.
 _PAST_DEFAULTS = {"model": {"deform_geometry": ("rgb", "thermal"), "geometry_bias": True},
+                  "paths": {"whole_window": 0, "whole_track": (0.6, 1.6)},
                   "priors": dict.fromkeys(("rigidity", "isometry", "rotation", "smoothness", "sparsity",
                                            "static", "anisotropy"), 0.0)}
 

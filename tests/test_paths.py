@@ -91,6 +91,24 @@ def test_blobs_link_into_one_track_per_object_and_part_at_a_hotter_level():
     assert np.allclose(hottest.centroid, (40, 19), atol=0.5)
 
 
+def test_a_blob_is_whole_by_its_neighbours_size_when_its_object_nears_the_camera():
+    """An object nearing the camera grows smoothly (60 -> 280 px over 24 frames), as family-inside
+    seed 42's ball: against the track's 25th percentile every frame from the 13th on looks merged,
+    while the cut one passes, and too few are left to fit (that ball was never learned). Against the
+    median of the 3 blobs either side every frame is whole but the cut one (half the area) and the
+    merged one (twice)."""
+    areas = np.linspace(60, 280, 24).astype(int)
+    areas[8] //= 2                     # cut by a cup in front of it
+    areas[16] *= 2                     # merged with a hot thing behind it
+    blobs = [P.Blob(i / 23, np.zeros(2), int(a), 1, False, np.array([]), 160) for i, a in enumerate(areas)]
+
+    def whole(window: int) -> list[int]:
+        typical = P.typical_areas(blobs, window)
+        return [i for i, a in enumerate(areas) if 0.6 <= a / typical[i] <= 1.6]
+    assert whole(3) == [i for i in range(24) if i not in (8, 16)]
+    assert whole(0) == list(range(1, 12)) and len(whole(0)) < P.PathConfig().min_frames
+
+
 @pytest.fixture(scope="module")
 def family(tmp_path_factory):
     out = tmp_path_factory.mktemp("paths")

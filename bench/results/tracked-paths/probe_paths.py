@@ -7,8 +7,9 @@ datasets (the simulator's objects are read):
     python bench/results/tracked-paths/probe_paths.py DATA... > bench/results/tracked-paths/probe_paths.txt
 
 With --oracle-blobs each object's blob is its mask in the simulator's frames instead (what the
-triangulation alone can do)."""
+triangulation alone can do). PATHS='{"whole_window": 0}' (JSON) overrides PathConfig fields."""
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -55,8 +56,8 @@ for name in sys.argv[1 + oracle:]:
     o = Oracle(meta['variant'], meta['seed'])
     ds = load_dataset(d)
     scene = Scene(ds)
-    settings = P.PathConfig()
-    found = oracle_paths(scene, ds, settings) if oracle else P.moving_paths(scene, settings)
+    settings = P.PathConfig(**json.loads(os.environ.get('PATHS', '{}')))   # e.g. PATHS='{"whole_window": 3}'
+    found = oracle_paths(scene, ds, settings) if oracle else P.tracked_paths(scene, settings).moving
     times = np.array([t for t in scene.times if scene.views_at('thermal', t)])
     truth = np.stack([[o.pose(k, t).position for t in times] for k in range(len(o.objects))])   # (O, T, 3)
     hit = set()
