@@ -24,8 +24,9 @@ On the simulator's development seeds 40-43 (`bench/results/tracked-paths/probe_p
 the blob size judged against the whole track's) this found 10 of the 13 moving objects, each path
 0.7-9 cm from the object's centre (median over time), and no path where nothing moves; on seeds
 40-49 25 of 33 with today's rule (`bench/results/whole-window/probe-dev-after.txt`). Most it misses
-overlap a hot cup in the image for most of the sequence. With the simulator's masks as blobs the same fit is 1-7 cm off. The bodies'
-paths that the training loss tracks were 0.2-1 m off along the training rays.
+overlap a hot cup in the image for most of the sequence. With the simulator's masks as blobs the
+same fit is 1-7 cm off. The bodies' paths that the training loss tracks were 0.2-1 m off along the
+training rays.
 """
 from __future__ import annotations
 
