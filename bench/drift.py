@@ -25,12 +25,12 @@ import math
 import sys
 from pathlib import Path
 
-import recon  # noqa: E402,F401  (before torch: its OpenMP wait policy, as `recon run` has it)
-import torch
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
+
+import recon  # noqa: E402,F401  (before torch: its OpenMP wait policy, as `recon run` has it)
+import torch  # noqa: E402
 
 from ablation import family_data  # noqa: E402
 from recon.config import GuardConfig, make_config  # noqa: E402

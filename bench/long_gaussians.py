@@ -34,11 +34,11 @@ import json
 import sys
 from pathlib import Path
 
-import recon  # noqa: E402,F401  (before torch: its OpenMP wait policy, as `recon run` has it)
-import torch
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+import recon  # noqa: E402,F401  (before torch: its OpenMP wait policy, as `recon run` has it)
+import torch  # noqa: E402
 
 from recon.data import load_dataset  # noqa: E402
 from recon.dtg.gaussians import SH_C0, quat_to_rotmat  # noqa: E402

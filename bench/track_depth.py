@@ -26,12 +26,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import recon  # noqa: E402,F401  (before torch: its OpenMP wait policy, as `recon run` has it)
-import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
+
+import recon  # noqa: E402,F401  (before torch: its OpenMP wait policy, as `recon run` has it)
+import torch  # noqa: E402
 
 import recon.train.initial as initial  # noqa: E402
 from ablation import family_data  # noqa: E402

@@ -5,6 +5,7 @@ frame, and with the render blurred 3x3 (medians; the last three numbers: the gai
 """
 import sys
 from pathlib import Path
+import cv2
 import numpy as np, recon, torch
 from recon.data import load_dataset
 from recon.render import load_run, render_frame
@@ -20,7 +21,6 @@ for split, views in (("train", scene.train["rgb"][::5]), ("test", scene.test["rg
         gain = (g * p).sum(0) / (p * p).sum(0)
         mse0 = ((g - p) ** 2).mean(); mse1 = ((g - p * gain) ** 2).mean()
         # blur: compare against a 3x3 box of the render
-        import cv2
         pb = cv2.blur(pr.numpy(), (3, 3)); mse2 = ((gt.numpy() - pb) ** 2).mean()
         out.append((-10*np.log10(mse0), -10*np.log10(mse1), -10*np.log10(mse2), *gain))
     o = np.array(out); print(split, "psnr / with per-channel gain / render blurred 3x3, gains:", np.round(np.median(o, 0), 3))

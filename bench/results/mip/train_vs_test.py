@@ -6,6 +6,7 @@ over the training rig's views (cam0) and the held-out rig's (cam1) of a run.
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 import recon  # noqa: F401
@@ -27,7 +28,6 @@ for split, views in (("train rig", scene.train["rgb"]), ("held-out rig", scene.t
         se = ((gt - pr) ** 2).mean(-1).numpy()
         h = se.shape[0]
         label = data / "masks/rgb" / Path(v.frame.file_path).name
-        import cv2
         m = cv2.imread(str(label), cv2.IMREAD_UNCHANGED)
         mov = (m > 0) if m is not None else np.zeros(se.shape, bool)
         rows = np.arange(h)[:, None]
