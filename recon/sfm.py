@@ -31,6 +31,7 @@ from rig.calibrate import Lens
 
 MIN_FEATURES = 200          # median SIFT features per image below which images lack texture/light
 MIN_INLIERS = 30            # median inlier matches of verified pairs below which matching is weak
+AGREE_DEG = 2.0             # two mapping tries agree when their orientations differ by less (median)
 
 
 class SfmError(RuntimeError):
@@ -56,6 +57,11 @@ class SfmOptions:
     min_model_size: int = 3
     num_threads: int = 2
     seed: int = 0
+    # Incremental mapping from seeds seed, seed+1, ... until two models agree (AGREE_DEG), at most
+    # this many; the most images registered, then the lowest reprojection error, is kept. On 3 s
+    # test sessions 4 of 55 single runs bent the path (77-83 deg after alignment; reprojection
+    # 1.20-1.31 px against <= 1.05 from other seeds on the same frames): docs/prepare.md.
+    mapping_tries: int = 3
 
     def __post_init__(self):
         if self.matching not in ("sequential", "exhaustive"):
@@ -227,26 +233,79 @@ def run_sfm(image_dir: str | Path, names: list[str], work_dir: str | Path,
     with quiet_glog():
         times, n_pairs = _features_and_matches(db, image_dir, names, opt, work, say)
         t0 = time.perf_counter()
-        mapping = pycolmap.IncrementalPipelineOptions()
-        mapping.num_threads = opt.num_threads
-        mapping.random_seed = opt.seed
-        mapping.min_model_size = opt.min_model_size
-        if not opt.refine_intrinsics:
-            if not opt.camera_params:
-                raise ValueError("refine_intrinsics=False needs camera_params")
-            mapping.ba_refine_focal_length = mapping.ba_refine_extra_params = False
-            mapping.mapper.abs_pose_refine_focal_length = mapping.mapper.abs_pose_refine_extra_params = False
-        model_dir.mkdir()
-        say("incremental mapping")
-        models = pycolmap.incremental_mapping(db, image_dir, model_dir, options=mapping)
+        kept, tries = _map_until_agreed(db, image_dir, model_dir, opt, say)
         times["map_s"] = time.perf_counter() - t0
     stats = database_stats(db)
     stats.update({k: round(v, 2) for k, v in times.items()}, pairs=n_pairs,
-                 pycolmap_s=round(sum(times.values()), 2), models=len(models))
-    if not models:
+                 pycolmap_s=round(sum(times.values()), 2), mapping_tries=tries)
+    if kept is None:
         raise SfmError("no reconstruction: " + diagnose(stats, 0, len(names)), stats)
-    rec = max(models.values(), key=lambda r: r.num_reg_images())
+    rec, seed = kept
+    stats["mapping_seed"] = seed
     return _result(rec, stats, len(names))
+
+
+def _map_once(db: Path, image_dir: Path, model_dir: Path, opt: SfmOptions, seed: int):
+    """One incremental mapping from `seed`: its largest model, or None."""
+    import pycolmap
+    mapping = pycolmap.IncrementalPipelineOptions()
+    mapping.num_threads = opt.num_threads
+    mapping.random_seed = seed
+    mapping.min_model_size = opt.min_model_size
+    if not opt.refine_intrinsics:
+        if not opt.camera_params:
+            raise ValueError("refine_intrinsics=False needs camera_params")
+        mapping.ba_refine_focal_length = mapping.ba_refine_extra_params = False
+        mapping.mapper.abs_pose_refine_focal_length = mapping.mapper.abs_pose_refine_extra_params = False
+    model_dir.mkdir(parents=True)
+    models = pycolmap.incremental_mapping(db, image_dir, model_dir, options=mapping)
+    return max(models.values(), key=lambda r: r.num_reg_images()) if models else None
+
+
+def _orientations(rec) -> dict[str, np.ndarray]:
+    """image name -> (3, 3) world-from-camera rotation."""
+    return {rec.image(i).name: rec.image(i).cam_from_world().matrix()[:, :3].T for i in rec.reg_image_ids()}
+
+
+def orientation_disagreement_deg(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> float:
+    """Median angle (deg) between the camera orientations (name -> (3, 3) world-from-camera) of two
+    reconstructions after the one rotation that best aligns them (chordal mean), over the images
+    both registered; inf with fewer than 3 in common. Unlike an alignment of camera centres it is
+    well-posed for a path along a line, and the scale and origin of each model do not enter."""
+    common = sorted(set(a) & set(b))
+    if len(common) < 3:
+        return float("inf")
+    m = sum(b[n] @ a[n].T for n in common)
+    u, _, vt = np.linalg.svd(m)
+    r = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    cos = [(np.trace((r @ a[n]).T @ b[n]) - 1) / 2 for n in common]
+    return float(np.median(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))))
+
+
+def _map_until_agreed(db: Path, image_dir: Path, model_dir: Path, opt: SfmOptions, say):
+    """Mapping from seeds opt.seed, opt.seed+1, ... until two models' orientations agree within
+    AGREE_DEG (or `mapping_tries` ran). Returns ((reconstruction, seed) or None, per-try stats):
+    the model with the most registered images, then the lowest mean reprojection error."""
+    models, tries = [], []
+    for k in range(max(1, opt.mapping_tries)):
+        seed = opt.seed + k
+        say(f"incremental mapping, seed {seed}" + (" (the earlier tries disagree)" if k > 1 else ""))
+        rec = _map_once(db, image_dir, model_dir / f"seed{seed}", opt, seed)
+        if rec is None:
+            tries.append({"seed": seed, "registered": 0})
+            continue
+        tries.append({"seed": seed, "registered": rec.num_reg_images(),
+                      "reprojection_px": round(float(rec.compute_mean_reprojection_error()), 4),
+                      "track_length": round(float(rec.compute_mean_track_length()), 3)})
+        rots = _orientations(rec)
+        agreed = any(orientation_disagreement_deg(rots, other) < AGREE_DEG for _, _, other in models)
+        models.append((rec, seed, rots))
+        if agreed:
+            break
+    if not models:
+        return None, tries
+    rec, seed, _ = min(models, key=lambda m: (-m[0].num_reg_images(), m[0].compute_mean_reprojection_error()))
+    return (rec, seed), tries
 
 
 def _result(rec, stats: dict, total: int) -> SfmResult:

@@ -14,7 +14,7 @@ from recon.cli import main as recon_main
 from recon.data import load_dataset
 from recon.prepare import REPORT_FILE, PrepareError, prepare_session
 from recon.prepare.poses import interpolate_pose, pose_errors
-from recon.prepare.simtruth import session_truth
+from recon.prepare.simtruth import prepared_rgb_pose_errors
 from rig.calibrate import simulated_calibration
 from rig.capture.config import CaptureConfig
 from rig.capture.session_capture import Capture
@@ -63,13 +63,7 @@ def test_dataset_loads_with_thermal_poses_from_the_rig(prepared, session):
 def test_recovered_poses_against_the_simulator(prepared, session):
     """Coarse on this 3 s test session (its keyframes are 0.2 s apart and blended: ghosted
     views); the figures in docs/prepare.md come from bench/prepare_accuracy.py."""
-    s = open_session(session)
-    truth = session_truth(s)
-    report = json.loads((prepared / REPORT_FILE).read_text())
-    ds = load_dataset(prepared)
-    est = np.stack([f.c2w_opencv() for f in ds.frames if f.modality == "rgb"])
-    gt = np.stack([truth.rgb_pose(s.rgb[e["rgb_record"]]) for e in report["frame_list"]])
-    e = pose_errors(est, gt)
+    e = prepared_rgb_pose_errors(open_session(session), prepared)
     assert np.median(e["rotation_deg"]) < 2.0 and np.median(e["position"]) < 0.02
     assert e["scale"] == pytest.approx(1.0, abs=0.02)                       # metric (simulator scale)
 

@@ -48,3 +48,19 @@ def session_truth(session) -> SessionTruth | None:
         make_world(scene["variant"], scene["seed"])
     files = {f"rgb/{e['file']}": e for e in entries}
     return SessionTruth(world, scene["rig"], entries[0]["scene_t0_host_s"], files)
+
+
+def prepared_rgb_pose_errors(session, data_dir) -> dict:
+    """`recon.prepare.poses.pose_errors` of a prepared dataset's RGB poses (data_dir, written by
+    `recon prepare` from the simulated `session`) against the simulator's true path."""
+    import json
+    from pathlib import Path
+
+    from recon.data import load_dataset
+    from recon.prepare.pipeline import REPORT_FILE
+    from recon.prepare.poses import pose_errors
+    truth = session_truth(session)
+    report = json.loads((Path(data_dir) / REPORT_FILE).read_text())
+    est = np.stack([f.c2w_opencv() for f in load_dataset(data_dir).frames if f.modality == "rgb"])
+    gt = np.stack([truth.rgb_pose(session.rgb[e["rgb_record"]]) for e in report["frame_list"]])
+    return pose_errors(est, gt)
