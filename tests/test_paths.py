@@ -1,6 +1,8 @@
 """Moving objects' paths from the thermal frames (recon/train/paths.py): triangulation from a
 sweeping camera against known paths, blobs and tracks on drawn frames, and the whole chain on a
 simulated family scene graded by the simulator's objects."""
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 import torch
@@ -107,6 +109,44 @@ def test_a_blob_is_whole_by_its_neighbours_size_when_its_object_nears_the_camera
         return [i for i, a in enumerate(areas) if 0.6 <= a / typical[i] <= 1.6]
     assert whole(3) == [i for i in range(24) if i not in (8, 16)]
     assert whole(0) == list(range(1, 12)) and len(whole(0)) < P.PathConfig().min_frames
+
+
+def test_a_still_cup_is_found_before_linking_and_a_ball_merged_with_it_is_not_fitted_there():
+    """A hot cup stands where a hot ball on a half circle passes (both 160x120 discs, seen by a
+    sweeping camera): at the instants they touch in the image they are one blob. The cup's blobs
+    are one still group (every instant but the merged ones), found before any linking, so no
+    track carries the cup; the ball's track keeps its own blobs and the merged ones, and the merged
+    ones are the instants merged_times drops before its path is fitted."""
+    settings = P.PathConfig()
+    times = np.linspace(0, 1, 40)
+    projections = sweep(times, 40)
+    cup = np.array([0.0, 0.25, 0.08])
+    at_cup = pixels_of(projections, np.repeat(cup[None], 40, 0))
+    at_ball = pixels_of(projections, half_circle(times))
+    frames = []
+    for c, b in zip(at_cup, at_ball):
+        f = np.full((120, 160), 295.0)
+        disc(f, c, 6, 330)
+        disc(f, b, 5, 350)
+        frames.append(f)
+    blobs = [P.frame_blobs(f, None, t, 10.0, settings) for f, t in zip(frames, times)]
+    merged = {i for i in range(40) if len(blobs[i]) == 1}
+    assert 4 <= len(merged) <= 20
+    groups, rest = P.still_groups(blobs, projections, settings)
+    (group,) = groups
+    assert sorted(int(round(b.time * 39)) for b in group) == [i for i in range(40) if i not in merged]
+    assert all(np.linalg.norm(b.centroid - at_cup[int(round(b.time * 39))]) < 0.5 for b in group)
+    (ball,) = P.link_tracks(rest, 160)
+    assert len(ball) == 40
+    k = np.array([[150.0, 0, 80], [0, 150, 60], [0, 0, 1]])             # sweep()'s intrinsics
+    cameras = {float(t): SimpleNamespace(fx=150.0, fy=150.0, cx=80.0, cy=60.0, width=160, height=120,
+                                         viewmat=torch.as_tensor(np.vstack([np.linalg.inv(k) @ m, [0, 0, 0, 1]])))
+               for t, m in zip(times, projections)}
+    still = P.fit_track(group, cameras, np.array([0, 0, 1.0]), settings)
+    assert still is not None and np.linalg.norm(still.at(0.5).numpy() - cup) < 0.03
+    path = P.TrackedPath(torch.zeros(2, 3), 0.5, 0.05, 0.0, 99.0, 40, {b.time: b for b in ball})
+    dropped = {int(round(t * 39)) for t in P.merged_times(path, [still], cameras)}
+    assert dropped and dropped <= merged
 
 
 @pytest.fixture(scope="module")

@@ -203,6 +203,78 @@ def link_tracks(blobs: list[list[Blob]], width: int) -> list[list[Blob]]:
     return tracks
 
 
+def triangulate_point(projections: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """(3,) the point seen at pixels (T, 2) through projections (T, 3, 4), T >= 2: linear (DLT)."""
+    rows = np.concatenate([projections[:, 0] - pixels[:, :1] * projections[:, 2],
+                           projections[:, 1] - pixels[:, 1:] * projections[:, 2]])
+    x = np.linalg.svd(rows)[2][-1]
+    return x[:3] / (x[3] if abs(x[3]) > 1e-12 else 1e-12)
+
+
+def still_groups(blobs: list[list[Blob]], projections: np.ndarray, settings: PathConfig
+                 ) -> tuple[list[list[Blob]], list[list[Blob]]]:
+    """Blobs of things that stay in place, found before any linking: (groups, the other blobs per
+    instant). A group is the blobs (one per instant, same sign) whose centroids lie within
+    `min_still_error` px (at 160 px wide) of one 3D point's projection, in at least `still_share` of
+    the instants: hypotheses from blob pairs of widely spaced instants (linear triangulation), the
+    best supported refined on its support, its blobs taken out, repeated. A still hot thing that a
+    moving one passes merges with it for a while: linked over time, the merged blobs carried its
+    track away (family-inside 40's cup fitted as a moving body) or its blobs carried a moving
+    object's track into it. Taken out first, only the merged blobs remain to link.
+    blobs: per instant (T lists); projections: (T, 3, 4)."""
+    rest = [list(frame) for frame in blobs]
+    n = len(rest)
+    if settings.still_share <= 0 or n < 2:
+        return [], rest
+    width = next((b.width for frame in rest for b in frame), 160)
+    tol = settings.min_still_error * width / 160
+    need = max(settings.min_frames, int(np.ceil(settings.still_share * n)))
+    pairs = [(i, j) for i, j in ((0, n // 2), (n // 4, 3 * n // 4), (n // 2, n - 1), (0, n - 1)) if i != j]
+    groups = []
+    while True:
+        best, best_hits = None, []
+        for i, j in pairs:
+            for a in rest[i]:
+                for b in rest[j]:
+                    if a.sign != b.sign or not 0.5 <= a.area / b.area <= 2:
+                        continue
+                    point = triangulate_point(projections[[i, j]], np.stack([a.centroid, b.centroid]))
+                    hits = _still_hits(point, a.sign, rest, projections, tol, settings.still_area)
+                    if len(hits) > len(best_hits):
+                        best, best_hits = (a.sign, point), hits
+        if len(best_hits) < need:
+            return groups, rest
+        sign, point = best
+        pixels = np.stack([blob.centroid for _, blob in best_hits])
+        point = least_squares(lambda x: (to_pixels(projections[[k for k, _ in best_hits]], x) - pixels).ravel(),
+                              point, method="lm").x
+        hits = _still_hits(point, sign, rest, projections, tol, settings.still_area) or best_hits
+        for k, blob in hits:
+            rest[k] = [b for b in rest[k] if b is not blob]
+        groups.append([blob for _, blob in hits])
+
+
+def _still_hits(point: np.ndarray, sign: int, blobs: list[list[Blob]], projections: np.ndarray,
+                tol: float, spread: float) -> list[tuple[int, Blob]]:
+    """(instant, blob) where a blob of `sign` has its centroid within tol px of point's projection
+    (in front of the camera) and an area within `spread` x the median of those blobs: a still
+    thing's blob keeps its size over a sweep, and one merged with a thing passing near its centre
+    does not (the merged blob is the passing thing's too)."""
+    depth = projections[:, 2, :3] @ point + projections[:, 2, 3]
+    seen = to_pixels(projections, point)
+    out = []
+    for k, frame in enumerate(blobs):
+        if depth[k] <= 0:
+            continue
+        near = [(float(np.linalg.norm(b.centroid - seen[k])), i) for i, b in enumerate(frame) if b.sign == sign]
+        if near and min(near)[0] <= tol:
+            out.append((k, frame[min(near)[1]]))
+    if not out:
+        return out
+    typical = float(np.median([blob.area for _, blob in out]))
+    return [(k, blob) for k, blob in out if 1 / spread <= blob.area / typical <= spread]
+
+
 def typical_areas(blobs: list[Blob], window: int) -> np.ndarray:
     """(B,) the area each blob of a track (in time order) should have if whole: the median over the
     `window` blobs before and after it and itself (an object approaching the camera grows smoothly;
@@ -278,17 +350,19 @@ def tracked_paths(scene, settings: PathConfig | None = None) -> Tracks:
         frames.append((t, scene.kelvin(target).numpy(), None if valid is None else valid.numpy()))
     cameras = {t: view.camera for t, view in views}
     up = scene.up().double().numpy()
+    projections = np.stack([projection(view.camera) for _, view in views])
     paths = []
     for level in settings.contrast:
         blobs = [frame_blobs(kelvin, valid, t, level, settings) for t, kelvin, valid in frames]
-        paths += [fit_track(track, cameras, up, settings) for track in link_tracks(blobs, views[0][1].camera.width)]
+        groups, blobs = still_groups(blobs, projections, settings)
+        paths += [fit_track(track, cameras, up, settings) for track in groups + link_tracks(blobs, views[0][1].camera.width)]
     floor = settings.min_travel * scene.extent()
     moves = lambda p: travel(p) > floor and p.still_error > settings.min_still_error        # noqa: E731
     fitted = [p for p in paths if p is not None]
     still = [p for p in fitted if not moves(p)]
     moving = []
     for path in (p for p in fitted if moves(p)):
-        merged = merged_times(path, still)
+        merged = merged_times(path, still, cameras)
         if merged:                  # refitted to its frames apart from the still objects
             path = fit_track([b for t, b in path.seen.items() if t not in merged], cameras, up, settings)
         if path is not None and moves(path):
@@ -316,13 +390,21 @@ def on_still_blobs(scene, still: list[TrackedPath], points: torch.Tensor, share:
     return out
 
 
-def merged_times(path: TrackedPath, still: list[TrackedPath]) -> set[float]:
-    """The instants where path's blob is a moving object merged with a still one: a still path's blob
-    (at any contrast level) lies on it away from its centre (a quarter of its diameter). Such a
-    blob's centre is neither object's, and a smooth path through it fits as well as a real one."""
-    return {t for t, blob in path.seen.items()
-            if any(t in q.seen and blob.covers(q.seen[t].centroid)
-                   and np.linalg.norm(q.seen[t].centroid - blob.centroid) > 0.25 * blob.diameter for q in still)}
+def merged_times(path: TrackedPath, still: list[TrackedPath], cameras: dict) -> set[float]:
+    """The instants where path's blob is a moving object merged with a still one: where a still
+    path's blob centre (at any contrast level) lies on the blob away from its centre (a quarter of
+    its diameter), or, at instants the still path has no blob (merged: it is this one), where its
+    point projects (cameras: time -> camera). Such a blob's centre is neither object's, and a
+    smooth path through it fits as well as a real one."""
+    out = set()
+    for t, blob in path.seen.items():
+        p = projection(cameras[t])
+        for q in still:
+            xy = q.seen[t].centroid if t in q.seen else to_pixels(p[None], q.at(t).double().numpy())[0]
+            if (0 <= xy[0] < blob.width and 0 <= xy[1] and blob.covers(xy)
+                    and np.linalg.norm(xy - blob.centroid) > 0.25 * blob.diameter):
+                out.add(t)
+    return out
 
 
 def same_object(p: TrackedPath, q: TrackedPath) -> bool:
