@@ -19,6 +19,9 @@ triangulation"). Here
 4. a track moves where no still point explains it (3 px) and its path travels; frames where its
    blob swallows a still track's blob are dropped and it is fitted again; of the tracks of one
    object (at several levels), the one with the most frames is kept.
+   With `still_share` > 0 (off by default: it failed its held-out rule on outside RGB), still
+   things are found before linking instead (`still_groups`), so a track cannot carry a hot cup that
+   a moving object passes (docs/training.md, "Still hot things found before linking").
 
 On the simulator's development seeds 40-43 (`bench/results/tracked-paths/probe_paths.txt`, with
 the blob size judged against the whole track's) this found 10 of the 13 moving objects, each path
@@ -362,7 +365,7 @@ def tracked_paths(scene, settings: PathConfig | None = None) -> Tracks:
     still = [p for p in fitted if not moves(p)]
     moving = []
     for path in (p for p in fitted if moves(p)):
-        merged = merged_times(path, still, cameras)
+        merged = merged_times(path, still, cameras if settings.still_share > 0 else None)
         if merged:                  # refitted to its frames apart from the still objects
             path = fit_track([b for t, b in path.seen.items() if t not in merged], cameras, up, settings)
         if path is not None and moves(path):
@@ -390,17 +393,21 @@ def on_still_blobs(scene, still: list[TrackedPath], points: torch.Tensor, share:
     return out
 
 
-def merged_times(path: TrackedPath, still: list[TrackedPath], cameras: dict) -> set[float]:
-    """The instants where path's blob is a moving object merged with a still one: where a still
-    path's blob centre (at any contrast level) lies on the blob away from its centre (a quarter of
-    its diameter), or, at instants the still path has no blob (merged: it is this one), where its
-    point projects (cameras: time -> camera). Such a blob's centre is neither object's, and a
-    smooth path through it fits as well as a real one."""
+def merged_times(path: TrackedPath, still: list[TrackedPath], cameras: dict | None = None) -> set[float]:
+    """The instants where path's blob is a moving object merged with a still one: a still path's blob
+    centre (at any contrast level) lies on it away from its centre (a quarter of its diameter). With
+    cameras (time -> camera; `still_share` on), also where a still path's point projects there at
+    instants it has no blob (merged: it is this one). Such a blob's centre is neither object's, and
+    a smooth path through it fits as well as a real one."""
     out = set()
     for t, blob in path.seen.items():
-        p = projection(cameras[t])
         for q in still:
-            xy = q.seen[t].centroid if t in q.seen else to_pixels(p[None], q.at(t).double().numpy())[0]
+            if t in q.seen:
+                xy = q.seen[t].centroid
+            elif cameras is not None:
+                xy = to_pixels(projection(cameras[t])[None], q.at(t).double().numpy())[0]
+            else:
+                continue
             if (0 <= xy[0] < blob.width and 0 <= xy[1] and blob.covers(xy)
                     and np.linalg.norm(xy - blob.centroid) > 0.25 * blob.diameter):
                 out.add(t)
