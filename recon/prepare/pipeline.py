@@ -21,7 +21,7 @@ from recon.data import write_dataset
 from recon.prepare.frames import PrepareError, select_frames, session_timeline
 from recon.prepare.poses import interpolate_pose
 from recon.prepare.recover import LOW_LIGHT, recover_poses
-from recon.prepare.report import Report
+from recon.prepare.report import REPORT_FILE, Report
 from recon.prepare.rgbt import is_rgbt_folder, prepare_rgbt
 from recon.prepare.scale import DEPTH_RANGE_M, median_depth_units, metric_scale
 from recon.prepare.writing import THERMAL_SCALE_K, Step, dataset_frames, thermal_range_k
@@ -29,7 +29,6 @@ from recon.sfm import SfmError
 from rig.calibrate import CalibrationError, Target, find_calibration
 from rig.session import open_session
 
-REPORT_FILE = "prepare_report.json"
 
 
 @dataclass

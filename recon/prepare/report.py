@@ -7,6 +7,8 @@ import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+REPORT_FILE = "prepare_report.json"      # OUT/<this>: what `recon prepare` measured, also when it refused
+
 
 def _finite(x):
     """JSON without NaN/inf (strict readers reject them): such numbers become strings."""

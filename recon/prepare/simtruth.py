@@ -57,7 +57,7 @@ def prepared_rgb_pose_errors(session, data_dir) -> dict:
     from pathlib import Path
 
     from recon.data import load_dataset
-    from recon.prepare.pipeline import REPORT_FILE
+    from recon.prepare.report import REPORT_FILE
     from recon.prepare.poses import pose_errors
     truth = session_truth(session)
     report = json.loads((Path(data_dir) / REPORT_FILE).read_text())
