@@ -110,6 +110,13 @@ def to_pixels(projections: np.ndarray, points: np.ndarray) -> np.ndarray:
     return p[:, :2] / z[:, None]
 
 
+def dlt_rows(projections: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """(2T, 4) rows r with r . (X, 1) = 0 where the point X projects to pixels (T, 2) through
+    projections (T, 3, 4): the linear (DLT) triangulation equations, x rows then y rows."""
+    return np.concatenate([projections[:, 0] - pixels[:, :1] * projections[:, 2],
+                           projections[:, 1] - pixels[:, 1:] * projections[:, 2]])
+
+
 def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndarray, knots: int,
                      smoothness: float, level: float, up: np.ndarray | None) -> np.ndarray:
     """(K, 3) knots of the smooth path whose point at each time times (T,) projects to pixels (T, 2)
@@ -129,8 +136,7 @@ def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndar
         spread = np.eye(knots) - 1.0 / knots
         priors.append(np.kron(spread, np.asarray(up, dtype=np.float64)[None]) * np.sqrt(level))
     prior = np.concatenate(priors)                                           # (R, 3K)
-    rows = np.concatenate([projections[:, 0] - pixels[:, :1] * projections[:, 2],
-                           projections[:, 1] - pixels[:, 1:] * projections[:, 2]])   # (2T, 4)
+    rows = dlt_rows(projections, pixels)                                     # (2T, 4)
     a = (np.concatenate([basis, basis])[:, :, None] * rows[:, None, :3]).reshape(len(rows), 3 * knots)
     start = np.linalg.lstsq(np.concatenate([a, prior]), np.concatenate([-rows[:, 3], np.zeros(len(prior))]),
                             rcond=None)[0]
@@ -208,9 +214,7 @@ def link_tracks(blobs: list[list[Blob]], width: int) -> list[list[Blob]]:
 
 def triangulate_point(projections: np.ndarray, pixels: np.ndarray) -> np.ndarray:
     """(3,) the point seen at pixels (T, 2) through projections (T, 3, 4), T >= 2: linear (DLT)."""
-    rows = np.concatenate([projections[:, 0] - pixels[:, :1] * projections[:, 2],
-                           projections[:, 1] - pixels[:, 1:] * projections[:, 2]])
-    x = np.linalg.svd(rows)[2][-1]
+    x = np.linalg.svd(dlt_rows(projections, pixels))[2][-1]
     return x[:3] / (x[3] if abs(x[3]) > 1e-12 else 1e-12)
 
 
