@@ -166,8 +166,10 @@ def test_follow_trains_while_a_simulated_capture_is_written(tmp_path):
     session, run = tmp_path / "session", tmp_path / "run"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     with open(tmp_path / "capture.log", "w") as capture_log:
+        # 4 s phone files: the first reaches the session early enough on a slow host too (with 10 s
+        # files a host 4x slower than usual wrote the first one just before the capture ended)
         capture = subprocess.Popen([sys.executable, "-m", "rig", "capture", "--duration", "20",
-                                    "--out", str(session), "--quiet"], env=env, cwd=ROOT,
+                                    "--sim-segment", "4", "--out", str(session), "--quiet"], env=env, cwd=ROOT,
                                    stdout=subprocess.DEVNULL, stderr=capture_log)
         try:
             while not (session / "session.json").exists():

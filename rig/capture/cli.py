@@ -76,6 +76,9 @@ def register(sub) -> None:
                    help="simulated world: keyframes per second (blended between; 30 for sharp moving views)")
     p.add_argument("--sim-render-scale", type=float, default=0.2, metavar="S",
                    help="simulated world: keyframes rendered at S x 640x480 and upscaled")
+    p.add_argument("--sim-segment", type=positive_float, default=10.0, metavar="S",
+                   help="simulated phone: seconds per movie file (a file reaches the session only once "
+                        "it is written: shorter files give `recon run --follow` its first poses sooner)")
     p.add_argument("--no-sim-lamp", action="store_true",
                    help="simulated rig without its sync-box lamp: sync falls back to cross-correlation")
     p.add_argument("--quiet", action="store_true", help="no progress line")
@@ -92,6 +95,7 @@ def main(args) -> int:
                         packet_size=args.packet_size, settle_s=args.settle, seed=args.seed,
                         sim_lamp=not args.no_sim_lamp, sim_scene=args.sim_scene, sim_variant=args.sim_variant,
                         sim_keyframe_hz=args.sim_keyframes, sim_render_scale=args.sim_render_scale,
+                        sim_segment_s=args.sim_segment,
                         progress=not args.quiet, profile=args.profile, frame_rate=args.fps,
                         ptp=not args.no_ptp)
     handle = None
