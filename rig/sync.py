@@ -434,13 +434,15 @@ def residual_note(files: dict[str, dict], windows: int) -> str | None:
     return f"{windows} window of the phone files correlated with the reference; 2 are needed"
 
 
-def thermal_gaps(times: np.ndarray, dropped_before: np.ndarray) -> list[dict]:
-    """Intervals longer than 1.5 frame periods: drops (block ids missing) or pauses (NUC)."""
+def thermal_gaps(times: np.ndarray, dropped_before: np.ndarray, period_s: float | None = None) -> list[dict]:
+    """Intervals longer than 1.5 frame periods: drops (block ids missing) or pauses (NUC).
+    period_s: the camera's set frame period, the one capture's nuc pause events use (None: the
+    median interval, which late frames on a busy host push up so the two lists could differ)."""
     t = np.asarray(times, float)
     if len(t) < 3:
         return []
     dt = np.diff(t)
-    period = np.median(dt)
+    period = period_s or np.median(dt)
     out = []
     for k in np.nonzero(dt > 1.5 * period)[0]:
         d = int(dropped_before[k + 1])
@@ -450,9 +452,10 @@ def thermal_gaps(times: np.ndarray, dropped_before: np.ndarray) -> list[dict]:
 
 
 def synchronise(thermal: list[dict], rgb: list[dict], events: list[dict], tick_hz: float,
-                host_epoch: dict, ptp_slave: bool = False) -> SyncResult:
+                host_epoch: dict, ptp_slave: bool = False, frame_period_s: float | None = None) -> SyncResult:
     """Sync a session's records (as `rig.session.Session` holds them). ptp_slave: the thermal
-    camera's clock followed a PTP grandmaster (session.json thermal.ptp.status "Slave")."""
+    camera's clock followed a PTP grandmaster (session.json thermal.ptp.status "Slave").
+    frame_period_s: the thermal camera's set frame period, if known (see `thermal_gaps`)."""
     th = [r for r in thermal if r.get("device_ts")]
     clock = None
     th_t = np.zeros(0)
@@ -460,7 +463,7 @@ def synchronise(thermal: list[dict], rgb: list[dict], events: list[dict], tick_h
         clock = fit_clock(np.array([r["device_ts"] for r in th], float) / tick_hz,
                           np.array([r["host_ns"] for r in th], float) / 1e9, fixed_rate=ptp_slave)
         th_t = clock(np.array([r["device_ts"] for r in th], float) / tick_hz)
-    gaps = thermal_gaps(th_t, np.array([r.get("dropped_before", 0) for r in th]))
+    gaps = thermal_gaps(th_t, np.array([r.get("dropped_before", 0) for r in th]), frame_period_s)
     files: dict[str, dict] = {}
     realtime_minus_mono = (host_epoch["realtime_ns"] - host_epoch["monotonic_ns"]) / 1e9
     file_info = {e["file"]: e for e in events if e.get("event") == "rgb_file"}
@@ -524,8 +527,9 @@ def synchronise_session(session) -> SyncResult:
         events = [{**e, "host_s": rate * e["box_us"] / 1e6 + offset}
                   if e.get("event") == "marker" and "box_us" in e else e for e in events]
     tick_hz = session.meta.get("thermal", {}).get("tick_hz", 1e9)
+    rate = session.meta.get("thermal", {}).get("frame_rate")
     return synchronise(session.thermal, session.rgb, events, tick_hz, session.meta["host_clock"],
-                       ptp_slave=ptp_slave(session.meta))
+                       ptp_slave=ptp_slave(session.meta), frame_period_s=1.0 / rate if rate else None)
 
 
 def ptp_slave(meta: dict) -> bool:

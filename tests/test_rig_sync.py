@@ -34,6 +34,11 @@ def test_gaps_and_pairing():
     assert len(gaps) == 1 and gaps[0]["kind"] == "pause (NUC)" and gaps[0]["after"] == 9
     gaps = thermal_gaps(t, np.array([0] * 10 + [4] + [0] * 9))
     assert gaps[0]["kind"] == "dropped" and gaps[0]["dropped"] == 4
+    # a busy sender: intervals of 36 ms with every third 51 ms. 1.5 median intervals (54 ms)
+    # see no gap; 1.5 set periods (50 ms), the rule capture's nuc pause events use, see 4
+    late = np.cumsum([0.0] + [0.051 if k % 3 == 2 else 0.036 for k in range(12)])
+    assert thermal_gaps(late, np.zeros(13, int)) == []
+    assert [g["after"] for g in thermal_gaps(late, np.zeros(13, int), period_s=1 / 30)] == [2, 5, 8, 11]
     pairs = pair_frames(np.array([0.0, 0.1, 0.2]), np.array([0.21, 0.005, 0.5]), max_dt_s=0.02)
     assert pairs == [(0, 1, pytest.approx(0.005)), (2, 0, pytest.approx(0.01))]
 
