@@ -80,6 +80,14 @@ def sample_views(scene: Scene, views: list[View], points: torch.Tensor, occlusio
     return torch.stack(values), torch.stack(seen)
 
 
+def seen_mean(scene: Scene, views: list[View], points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(M, C) mean of what views see where points (M, 3) project, and (M,) bool whether any view
+    sees the point (its mean is 0 where none does)."""
+    values, seen = sample_views(scene, views, points)
+    count = seen.sum(0)
+    return (values * seen[..., None]).sum(0) / count.clamp_min(1)[:, None], count > 0
+
+
 def initial_temperatures(scene: Scene, points: torch.Tensor, max_views: int = 6) -> torch.Tensor | None:
     """Normalised temperature of each point, averaged over a few thermal training views that see it.
     Points no view sees get the median. -> (M,) or None."""
@@ -87,11 +95,9 @@ def initial_temperatures(scene: Scene, points: torch.Tensor, max_views: int = 6)
     if not views:
         return None
     picks = [views[i] for i in np.linspace(0, len(views) - 1, min(max_views, len(views))).round().astype(int)]
-    values, seen = sample_views(scene, picks, points)
-    count = seen.sum(0)
-    temps = (values[..., 0] * seen).sum(0) / count.clamp_min(1)
-    fill = temps[count > 0].median() if (count > 0).any() else torch.tensor(0.5)
-    return torch.where(count > 0, temps, fill).clamp(0, 1)
+    mean, seen = seen_mean(scene, picks, points)
+    fill = mean[seen, 0].median() if seen.any() else torch.tensor(0.5)
+    return torch.where(seen, mean[:, 0], fill).clamp(0, 1)
 
 
 def changing_points(scene: Scene, points: torch.Tensor, rgb_change: float, kelvin_change: float,

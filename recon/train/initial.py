@@ -12,7 +12,7 @@ from recon.dtg.gaussians import init_gaussians, trajectory_knots
 from recon.dtg.model import DTGModel
 from recon.dtg.motion import body_clusters, body_radii
 from recon.dtg.points import (changing_points, colour_seen_fraction, initial_temperatures, observed_time,
-                               sample_views, transient_points)
+                               seen_mean, transient_points)
 from recon.scene import Scene
 from recon.train.anchors import DepthAnchors, find_anchors
 from recon.train.paths import TrackedPath, on_still_blobs, tracked_paths
@@ -130,9 +130,11 @@ def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log
     elif bases:
         pts, rgb, dynamic, basis, pivots = _motion_bodies(cfg, scene, pts, rgb, dynamic, log)
     temps = initial_temperatures(scene, pts) if "thermal" in m.modalities else None
-    for b, path in enumerate(paths):       # a body's temperature as seen where it was built
-        rows = basis == b + 1
-        temps[rows] = seen_colours(scene, "thermal", path.reference, pts[rows], temps[~rows].median()[None])[:, 0]
+    if paths:                              # a body's temperature as seen where it was built
+        fill = temps[basis == 0].median()[None] if bool((basis == 0).any()) else temps.median()[None]
+        for b, path in enumerate(paths):
+            rows = basis == b + 1
+            temps[rows] = seen_colours(scene, "thermal", path.reference, pts[rows], fill)[:, 0]
     gates = body_gates(cfg, scene, pts, rgb, basis) if basis is not None else None
     if gates is not None:       # a body turns about what moves in it, not about the floor it came with
         for b in range(len(pivots)):
@@ -177,10 +179,8 @@ def body_gaussians(cfg: TrainConfig, scene: Scene, pts: torch.Tensor, rgb: torch
     m = cfg.model
     temps = None
     if "thermal" in m.modalities:
-        views = scene.views_at("thermal", t) or scene.train["thermal"]
-        values, seen = sample_views(scene, views, pts)
-        temps = (values[..., 0] * seen).sum(0) / seen.sum(0).clamp_min(1)
-        temps = torch.where(seen.any(0), temps, initial_temperatures(scene, pts)).clamp(0, 1)
+        mean, seen = seen_mean(scene, scene.views_at("thermal", t) or scene.train["thermal"], pts)
+        temps = torch.where(seen, mean[:, 0], initial_temperatures(scene, pts)).clamp(0, 1)
     return init_gaussians(pts, rgb, temps, m, cfg.routing, gen, trajectory_knots(m, scene.steps_per_unit_time()),
                           None, basis.float())
 
@@ -208,11 +208,9 @@ def seen_colours(scene: Scene, modality: str, t: float, pts: torch.Tensor, defau
     views = scene.views_at(modality, t)
     if not views:
         return default.expand(len(pts), -1).clone()
-    values, seen = sample_views(scene, views, pts)
-    count = seen.sum(0)
-    mean = (values * seen[..., None]).sum(0) / count.clamp_min(1)[:, None]
-    fill = mean[count > 0].mean(0) if bool((count > 0).any()) else default
-    return torch.where((count > 0)[:, None], mean, fill)
+    mean, seen = seen_mean(scene, views, pts)
+    fill = mean[seen].mean(0) if bool(seen.any()) else default
+    return torch.where(seen[:, None], mean, fill)
 
 
 def _tracked_bodies(cfg: TrainConfig, scene: Scene, pts, rgb, dynamic, paths: list[TrackedPath], log):
