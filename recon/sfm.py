@@ -290,11 +290,13 @@ def _map_until_agreed(db: Path, image_dir: Path, model_dir: Path, opt: SfmOption
     for k in range(max(1, opt.mapping_tries)):
         seed = opt.seed + k
         say(f"incremental mapping, seed {seed}" + (" (the earlier tries disagree)" if k > 1 else ""))
+        t0 = time.perf_counter()
         rec = _map_once(db, image_dir, model_dir / f"seed{seed}", opt, seed)
+        map_s = round(time.perf_counter() - t0, 2)
         if rec is None:
-            tries.append({"seed": seed, "registered": 0})
+            tries.append({"seed": seed, "registered": 0, "map_s": map_s})
             continue
-        tries.append({"seed": seed, "registered": rec.num_reg_images(),
+        tries.append({"seed": seed, "map_s": map_s, "registered": rec.num_reg_images(),
                       "reprojection_px": round(float(rec.compute_mean_reprojection_error()), 4),
                       "track_length": round(float(rec.compute_mean_track_length()), 3)})
         rots = _orientations(rec)
