@@ -90,7 +90,7 @@ def grade(trainer: Trainer, oracle: Oracle) -> dict:
                 p = body_positions(model, rows, t)
                 c = (p * w[:, None]).sum(0) / w.sum()
                 spread = float(np.sqrt((((p - c) ** 2).sum(1) * w).sum() / w.sum()))
-                centres = [oracle.pose(k, t).position for k in range(len(oracle.objects))]
+                centres = [oracle.centre(k, t) for k in range(len(oracle.objects))]
                 k = int(np.argmin([np.linalg.norm(c - q) for q in centres]))
                 ray = centres[k] - scene.views_at("thermal", t)[0].camera.center.numpy()
                 off = c - centres[k]

@@ -59,7 +59,7 @@ def main():
         scene = Scene(load_dataset(d))
         trainer = Trainer(cfg, scene, log=lambda *a: None)
         times = np.array([t for t in scene.times if scene.views_at('thermal', t)])
-        truth = np.stack([[o.pose(k, t).position for t in times] for k in range(len(o.objects))])
+        truth = np.stack([[o.centre(k, t) for t in times] for k in range(len(o.objects))])
         eyes = np.stack([scene.views_at('thermal', float(t))[0].camera.center.double().numpy() for t in times])
         start = centres(trainer.model, times)
         t0 = time.time()

@@ -59,7 +59,7 @@ for name in sys.argv[1 + oracle:]:
     settings = P.PathConfig(**json.loads(os.environ.get('PATHS', '{}')))   # e.g. PATHS='{"whole_window": 3}'
     found = oracle_paths(scene, ds, settings) if oracle else P.tracked_paths(scene, settings).moving
     times = np.array([t for t in scene.times if scene.views_at('thermal', t)])
-    truth = np.stack([[o.pose(k, t).position for t in times] for k in range(len(o.objects))])   # (O, T, 3)
+    truth = np.stack([[o.centre(k, t) for t in times] for k in range(len(o.objects))])   # (O, T, 3)
     hit = set()
     rows = []
     for p in found:
