@@ -273,6 +273,17 @@ class PathConfig:
     knots: int = 11
     smoothness: float = 1.0       # weight of the knots' second differences (metres, per knot)
     level: float = 1e4            # weight of the knots' heights along up staying at their mean
+    # > 0: pixel errors beyond robust_px (at 160 px wide) count as soft-L1; > 0: a blob continues a
+    # track only within link_kelvin of its last blob's median temperature. Tried 2026-12-05, off: on
+    # the development path probe robust_px 1 + smoothness 30 cut the paths' median error 0.045 ->
+    # 0.034 m, and link_kelvin 3 on top left 5 of 29 paths more than 0.2 m off at their 90th
+    # percentile over time (12 before: most followed one object, then another); on held-out
+    # seeds (3 min) neither passed its rule: robust + smooth 30 thermal MAE inside 1.60 -> 1.43 K,
+    # outside 1.95 -> 1.91 K but moving region outside +0.6 K (allowed 0.5); with link_kelvin 3
+    # thermal MAE 1.73 / 1.99 K, though moving-hot outside 28.8 -> 19.5 K
+    # (bench/results/path-smooth; docs/training.md).
+    robust_px: float = 0.0
+    link_kelvin: float = 0.0
     max_reprojection: float = 2.0     # px (at 160 px wide): a worse fit is not one object's path
     min_still_error: float = 3.0  # px (at 160 px wide): a still point explains a blob this well or better
     # > 0: still things are found first (paths.still_groups): a 3D point whose projection explains

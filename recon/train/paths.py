@@ -53,6 +53,7 @@ class Blob:
     border: bool                  # touches the image border (may be cut)
     pixels: np.ndarray            # (area,) its pixels' flat indices (y * width + x), sorted
     width: int
+    kelvin: float = float("nan")  # its pixels' median temperature (nan: not known)
 
     @property
     def diameter(self) -> float:
@@ -118,7 +119,7 @@ def dlt_rows(projections: np.ndarray, pixels: np.ndarray) -> np.ndarray:
 
 
 def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndarray, knots: int,
-                     smoothness: float, level: float, up: np.ndarray | None) -> np.ndarray:
+                     smoothness: float, level: float, up: np.ndarray | None, robust_px: float = 0.0) -> np.ndarray:
     """(K, 3) knots of the smooth path whose point at each time times (T,) projects to pixels (T, 2)
     by projections (T, 3, 4): least squares over the pixel errors, smoothness x the knots' second
     differences (metres) and level x their heights' spread along up (3,) (None or zero: no such
@@ -126,7 +127,11 @@ def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndar
 
     Depth is measurable because the rig's path differs from the object's: a handheld sweep shakes
     and changes pace. A camera gliding on a path as smooth and level as the object's leaves a family
-    of paths, scaled about the camera, that fit equally well."""
+    of paths, scaled about the camera, that fit equally well.
+
+    robust_px > 0: pixel errors beyond it count as soft-L1, so a few frames whose blob merged with
+    another pull the path less (such frames still move it: a path scaled about the camera explains
+    them, tests/test_paths.py)."""
     basis = hat_basis(times, knots)                                          # (T, K)
     second = np.zeros((max(knots - 2, 0), knots))
     for k in range(knots - 2):
@@ -149,7 +154,11 @@ def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndar
     def residuals(x: np.ndarray) -> np.ndarray:
         return np.concatenate([(to_pixels(projections, basis @ x.reshape(knots, 3)) - pixels).ravel(), prior @ x])
 
-    return least_squares(residuals, start, method="lm", max_nfev=200 * len(start)).x.reshape(knots, 3)
+    if robust_px > 0:   # soft-L1 on every residual: the priors' are well below robust_px, so stay quadratic
+        fit = least_squares(residuals, start, method="trf", loss="soft_l1", f_scale=robust_px, max_nfev=200 * len(start))
+    else:
+        fit = least_squares(residuals, start, method="lm", max_nfev=200 * len(start))
+    return fit.x.reshape(knots, 3)
 
 
 def reprojection_errors(knots: np.ndarray, times: np.ndarray, projections: np.ndarray,
@@ -177,14 +186,17 @@ def frame_blobs(kelvin: np.ndarray, valid: np.ndarray | None, time: float, contr
                 continue
             border = x == 0 or y == 0 or x + bw == w or y + bh == h
             pixels = np.flatnonzero(labels == i)
-            out.append(Blob(time, centroids[i] + 0.5, int(area), sign, bool(border), pixels, w))
+            out.append(Blob(time, centroids[i] + 0.5, int(area), sign, bool(border), pixels, w,
+                            float(np.median(kelvin.ravel()[pixels]))))
     return out
 
 
-def link_tracks(blobs: list[list[Blob]], width: int) -> list[list[Blob]]:
+def link_tracks(blobs: list[list[Blob]], width: int, max_kelvin: float = 0.0) -> list[list[Blob]]:
     """Tracks through per-instant blob lists (in time order): each blob continues the track of the
     same sign whose predicted centroid (constant velocity) is nearest, within its size plus 5 % of
-    the width and with an area within 3x; else it starts a track. A track may miss instants
+    the width and with an area within 3x (and, with max_kelvin > 0, a median temperature within
+    max_kelvin of the track's last blob: an object's temperature changes slowly, while the cup a
+    ball passed is another temperature); else it starts a track. A track may miss instants
     (occlusion) and continue."""
     tracks: list[list[Blob]] = []
     for frame in blobs:
@@ -194,6 +206,8 @@ def link_tracks(blobs: list[list[Blob]], width: int) -> list[list[Blob]]:
             for i, track in enumerate(tracks):
                 last = track[-1]
                 if i in taken or last.sign != blob.sign or not 1 / 3 <= blob.area / last.area <= 3:
+                    continue
+                if max_kelvin > 0 and abs(blob.kelvin - last.kelvin) > max_kelvin:   # nan: no test
                     continue
                 guess = last.centroid
                 if len(track) > 1:
@@ -308,8 +322,9 @@ def fit_track(track: list[Blob], cameras: dict, up: np.ndarray | None, settings:
     times = np.array([b.time for b in whole])
     projections = np.stack([projection(cameras[b.time]) for b in whole])
     pixels = np.stack([b.centroid for b in whole])
-    knots = triangulate_path(times, projections, pixels, settings.knots, settings.smoothness, settings.level, up)
     width = cameras[whole[0].time].width
+    knots = triangulate_path(times, projections, pixels, settings.knots, settings.smoothness, settings.level, up,
+                             settings.robust_px * width / 160)
     error = float(np.median(reprojection_errors(knots, times, projections, pixels))) * 160 / width
     r = max(range(len(whole)), key=lambda i: (whole[i].area, -abs(whole[i].time - 0.5)))
     ref, cam = whole[r], cameras[whole[r].time]
@@ -362,7 +377,7 @@ def tracked_paths(scene, settings: PathConfig | None = None) -> Tracks:
     for level in settings.contrast:
         blobs = [frame_blobs(kelvin, valid, t, level, settings) for t, kelvin, valid in frames]
         groups, blobs = still_groups(blobs, projections, settings)
-        paths += [fit_track(track, cameras, up, settings) for track in groups + link_tracks(blobs, views[0][1].camera.width)]
+        paths += [fit_track(track, cameras, up, settings) for track in groups + link_tracks(blobs, views[0][1].camera.width, settings.link_kelvin)]
     floor = settings.min_travel * scene.extent()
     moves = lambda p: travel(p) > floor and p.still_error > settings.min_still_error        # noqa: E731
     fitted = [p for p in paths if p is not None]
