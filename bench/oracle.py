@@ -45,7 +45,6 @@ from recon.run import evaluate_model  # noqa: E402
 from recon.scene import Scene  # noqa: E402
 from recon.train.trainer import Trainer  # noqa: E402
 from rig.sim.family import FamilyScene, case_of  # noqa: E402
-from rig.sim.shapes import Cylinder  # noqa: E402
 
 RUNGS = ("dtg", "oracle-bodies", "oracle-bodies+bodies-only", "oracle-paths")
 SAMPLES = 8        # recon simulate records the initial points at 8 instants (recon/data/simulate.py)
@@ -63,13 +62,10 @@ class Oracle:
         return self.objects[k].instance(t * self.scene.duration_s, self.scene.duration_s)
 
     def centre(self, k: int, t: float) -> np.ndarray:
-        """(3,) the middle of moving object k at time t, where its blob and so its tracked path is.
-        Its pose's position is its local origin: a ball's and a box's middle, but a can's base
-        (rig/sim/shapes.py Cylinder spans local z 0..height), half its height lower."""
-        pose = self.pose(k, t)
-        shape = self.objects[k].shape
-        middle = np.array([0.0, 0.0, shape.height / 2]) if isinstance(shape, Cylinder) else np.zeros(3)
-        return pose.position + pose.rotation @ middle
+        """(3,) the middle of moving object k at time t (its bounding sphere's centre), where its blob
+        and so its tracked path is. Its pose's position is its local origin: a ball's and a box's
+        middle, but a can's base (rig/sim/shapes.py Cylinder spans local z 0..height)."""
+        return self.pose(k, t).bounding_sphere()[0]
 
     def contains(self, k: int, t: float, points: np.ndarray, tolerance: float) -> np.ndarray:
         """(P,) bool: points (P, 3) lie inside moving object k at time t, within tolerance (m)."""

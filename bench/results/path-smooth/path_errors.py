@@ -40,8 +40,8 @@ for name in sys.argv[1:]:
     views = {t: scene.views_at('thermal', t)[0] for t in scene.times if scene.views_at('thermal', t)}
     every = np.array(sorted(views))
     names = {int(i): v['name'] for i, v in ds.mask_labels.items()}
+    truth = np.stack([[o.centre(k, t) for t in every] for k in range(len(o.objects))])         # (O, T, 3)
     for p in P.tracked_paths(scene, settings).moving:
-        truth = np.stack([[o.centre(k, t) for t in every] for k in range(len(o.objects))])     # (O, T, 3)
         est = p.at(torch.as_tensor(every)).numpy()
         k = int(np.argmin(np.median(np.linalg.norm(est[None] - truth, axis=2), 1)))
         error = np.linalg.norm(est - truth[k], axis=1)                                         # (T,)

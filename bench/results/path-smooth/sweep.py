@@ -4,8 +4,8 @@ matched to the nearest moving object (median distance over the thermal instants,
 bench/results/tracked-paths/probe_paths.py does) and summarised: objects with a path, strays
 (> 0.3 m from every object), and the median / 75th percentile / worst of the per-object median
 errors (m); and over every path (strays and second paths too), its 90th-percentile distance over
-time from its nearest object (a path that follows one object, then another, is caught here). Graded at each object's middle (Oracle.centre), not its pose's origin: a can's
-origin is its base.
+time from its nearest object (a path that follows one object, then another, is caught here).
+Graded at each object's middle (Oracle.centre), not its pose's origin: a can's origin is its base.
 
     python bench/results/path-smooth/sweep.py VARIANTS.json DATA... > bench/results/path-smooth/sweep.txt
 
