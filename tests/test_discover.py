@@ -15,14 +15,19 @@ from rig.sim.family import FamilyScene
 pytestmark = pytest.mark.usefixtures("two_threads")
 
 SEED = 1
+SEEDS = (1, 2, 3, 4)
+
+
+def family(tmp_path_factory, seed: int) -> Scene:
+    out = tmp_path_factory.mktemp(f"family{seed}")
+    simulate_dataset(out, SimulateConfig(variant="family-inside", frames=20, width=96, height=72, seed=seed,
+                                         points=2000))
+    return Scene(load_dataset(out))
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    out = tmp_path_factory.mktemp("family")
-    simulate_dataset(out, SimulateConfig(variant="family-inside", frames=20, width=96, height=72, seed=SEED,
-                                         points=2000))
-    return Scene(load_dataset(out))
+    return family(tmp_path_factory, SEED)
 
 
 def on_objects(points: torch.Tensor, seed: int = SEED) -> np.ndarray:
@@ -42,32 +47,53 @@ def body_points(trainer: Trainer) -> torch.Tensor:
     return g["means"].detach()[g["motion_basis"] > 0]
 
 
-def test_bodies_found_after_a_static_warm_up_are_on_the_moving_objects(scene):
+def discovering(scene: Scene, log=lambda _: None) -> Trainer:
+    """A dtg run that finds its bodies after a 120-iteration static warm-up, at the end of it."""
     cfg = make_config("dtg", iterations=1000, log_every=10**9, checkpoint_every=10**9, eval_every=10**9)
     cfg.curriculum.discover_after = 120
-    messages = []
-    tr = Trainer(cfg, scene, log=messages.append)
+    tr = Trainer(cfg, scene, log=log)
     assert tr.held is not None and tr.model.motion.count == 0
     while tr.iteration < tr.warmup:
         tr.step()
     assert tr.warmup == 120 and tr.held is not None
+    return tr
+
+
+def test_discovery_builds_bodies_and_training_goes_on(scene):
+    messages = []
+    tr = discovering(scene, messages.append)
     start = tr.model.num_gaussians
     tr.discover_bodies()                # what the next step would do first
     assert tr.held is None and tr.model.motion.count >= 1, messages
-    found = body_points(tr)
-    assert tr.model.num_gaussians == start + len(found)
+    assert tr.model.num_gaussians == start + len(body_points(tr))
     assert any("moving bodies from" in m for m in messages)
     # the bodies are built where the window starts, and training goes on
     assert tr.cfg.curriculum.center in scene.times
     for _ in range(20):
         tr.step()
-    purity = float(on_objects(found).mean())
+    assert all(torch.isfinite(v).all() for v in tr.model.gaussians.values())
 
-    old = Trainer(make_config("dtg", iterations=1000, log_every=10**9), scene, log=lambda _: None)
-    old_purity = float(on_objects(body_points(old)).mean())
-    # measured (2 threads, deterministic): 3 of the 6 discovered points are on the moving objects; 1 of the 62
-    # points in the bodies built from the initial points alone (their floor under the paths)
-    assert purity > 0.4 and purity > old_purity + 0.2, (purity, old_purity)
+
+def test_bodies_found_after_a_static_warm_up_are_on_the_moving_objects(scene, tmp_path_factory):
+    """Pooled over four seeds, against the bodies the initial points alone give (paths off): one
+    seed's few discovered points flip with last-bit changes of its input (an OpenCV release's
+    other pixels turned seed 1's 3 of 6 into 0 of 6)."""
+    hits = points = base_hits = base_points = with_bodies = 0
+    for seed in SEEDS:
+        s = scene if seed == SEED else family(tmp_path_factory, seed)
+        tr = discovering(s)
+        tr.discover_bodies()
+        on = on_objects(body_points(tr), seed)
+        hits, points, with_bodies = hits + on.sum(), points + len(on), with_bodies + (tr.model.motion.count > 0)
+        cfg = make_config("dtg", iterations=1000, log_every=10**9)
+        cfg.curriculum.tracked_paths = False
+        base = on_objects(body_points(Trainer(cfg, s, log=lambda _: None)), seed)
+        base_hits, base_points = base_hits + base.sum(), base_points + len(base)
+    # measured (2 threads, deterministic): 26 of 30 discovered points on the moving objects, bodies
+    # found on seeds 1 and 3 (none on 2 and 4: nothing stood out of the static warm-up); 20 of 214
+    # of the points-only bodies' points (seeds 5-8, not tested: 25 of 34 against 23 of 228)
+    assert with_bodies >= 2, with_bodies
+    assert hits / points > 0.6 and hits / points > base_hits / base_points + 0.3, (hits, points, base_hits, base_points)
 
 
 @pytest.mark.parametrize("stop_at", [20, 45])      # in the warm-up, and after discovery (at 30)
