@@ -12,7 +12,10 @@ are read):
 
     python bench/results/path-smooth/path_errors.py DATA... > bench/results/path-smooth/path_errors.txt
 
-PATHS='{...}' (JSON) overrides PathConfig fields."""
+PATHS='{...}' (JSON) overrides PathConfig fields. SIGMA=1 adds, per path, the standard deviation along
+the rays that the fit's own Jacobian predicts (1 px of pixel noise, the priors as pseudo-observations:
+(J^T J)^-1 at the solution), median over its frames, and at the end its rank correlation with the 3D
+error: does the fit know when its depth is loose?"""
 import json
 import os
 import sys
@@ -20,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from scipy.optimize import least_squares
+from scipy.stats import spearmanr
 
 ROOT = Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(ROOT)); sys.path.insert(0, str(ROOT / 'bench'))
@@ -30,7 +35,35 @@ from recon.train import paths as P  # noqa: E402
 
 torch.set_grad_enabled(False)
 settings = P.PathConfig(**json.loads(os.environ.get('PATHS', '{}')))
-moved, held = [], []
+SIGMA = os.environ.get('SIGMA') == '1'
+
+
+def ray_sigma(knots: np.ndarray, times: np.ndarray, projections: np.ndarray, pixels: np.ndarray, up: np.ndarray,
+              centres: np.ndarray) -> np.ndarray:
+    """(T,) predicted std (m) of the path knots (K, 3) along the ray from each camera centre (T, 3)
+    at its time (T,), for the fit to pixels (T, 2) through projections (T, 3, 4)."""
+    k = len(knots)
+    basis = P.hat_basis(times, k)
+    second = np.zeros((max(k - 2, 0), k))
+    for i in range(k - 2):
+        second[i, i:i + 3] = (1, -2, 1)
+    prior = np.concatenate([np.kron(second, np.eye(3)) * np.sqrt(settings.smoothness),
+                            np.kron(np.eye(k) - 1.0 / k, up[None]) * np.sqrt(settings.level)])
+
+    def residuals(x):
+        return np.concatenate([(P.to_pixels(projections, basis @ x.reshape(k, 3)) - pixels).ravel(), prior @ x])
+    jac = least_squares(residuals, knots.ravel(), method='lm', max_nfev=1).jac
+    cov = np.linalg.inv(jac.T @ jac)
+    out = []
+    for b, c in zip(basis, centres):
+        rows = np.kron(b[None], np.eye(3))                                                   # (3, 3K)
+        d = rows @ knots.ravel() - c
+        d /= np.linalg.norm(d)
+        out.append(float(np.sqrt(d @ rows @ cov @ rows.T @ d)))
+    return np.array(out)
+
+
+moved, held, sigmas = [], [], []
 for name in sys.argv[1:]:
     d = Path(name)
     meta = json.loads((d / 'sim_meta.json').read_text())['config']
@@ -50,12 +83,17 @@ for name in sys.argv[1:]:
         proj = np.stack([P.projection(views[t].camera) for t in ts])
         middle, blob, fit = P.to_pixels(proj, truth[k][seen]), np.stack([p.seen[t].centroid for t in ts]), P.to_pixels(proj, est[seen])
         bias = np.linalg.norm(blob - middle, axis=1)
+        if SIGMA:
+            centres = np.stack([np.linalg.inv(views[t].camera.viewmat.double().numpy())[:3, 3] for t in ts])
+            sigma = ray_sigma(p.knots.double().numpy(), ts, proj, blob, scene.up().double().numpy(), centres)
+            sigmas.append((float(np.median(sigma)), float(np.median(error[seen]))))
         labels = [int(np.bincount(ds.mask(views[t].frame).ravel()[p.seen[t].pixels]).argmax()) for t in ts]
         followed = ', '.join(f'{names.get(lab, "background")} {labels.count(lab)}' for lab in dict.fromkeys(labels))
         print(f'{d.name} {o.objects[k].name}: {len(ts)} frames ({followed}); blob to middle {np.median(bias):.2f} px '
               f'(max {bias.max():.2f}); fit to blob {np.median(np.linalg.norm(fit - blob, axis=1)):.2f} px; fit to middle '
               f'{np.median(np.linalg.norm(fit - middle, axis=1)):.2f} px; 3D {np.median(error[seen]):.3f} m '
-              f'on its frames, {np.median(error):.3f} m over the sequence')
+              f'on its frames, {np.median(error):.3f} m over the sequence'
+              + (f'; predicted sigma along the rays {np.median(sigma):.3f} m' if SIGMA else ''))
         lo, hi = min(p.seen), max(p.seen)
         out = (every < lo) | (every > hi)
         if np.median(error) <= 0.3 and out.any():
@@ -68,3 +106,6 @@ for name in sys.argv[1:]:
         sys.stdout.flush()
 print(f'all instants outside a span: continued median {np.median(moved):.3f} p90 {np.percentile(moved, 90):.3f} m | '
       f'held median {np.median(held):.3f} p90 {np.percentile(held, 90):.3f} m')
+if SIGMA:
+    print(f'{len(sigmas)} paths: rank correlation (Spearman) of predicted sigma with 3D error on the frames '
+          f'{spearmanr(*zip(*sigmas))[0]:.2f}')
