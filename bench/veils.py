@@ -47,7 +47,8 @@ def object_spheres(data: Path) -> tuple[FamilyScene, dict]:
 def weights_on(model, view, pixels: torch.Tensor, mask: torch.Tensor):
     """Per-Gaussian blend weight summed over pixels (H, W) bool of a thermal render of view, the
     posed Gaussians (render inputs) and their colours (N,). The weight is read as the gradient of
-    the pixels' sum with respect to each Gaussian's colour (degree-0 thermal colour: linear)."""
+    the pixels' sum with respect to each Gaussian's colour (degree-0 thermal colour: linear; a
+    Gaussian whose colour is clamped at 0, 3DGS's max(SH + 0.5, 0), reads no weight)."""
     with torch.enable_grad():
         image, out, g = render(model, "thermal", view.time, view.camera, mask=mask)
         feats = g["features"]
@@ -57,7 +58,7 @@ def weights_on(model, view, pixels: torch.Tensor, mask: torch.Tensor):
             feats.retain_grad()
         (image[..., 0] * pixels).sum().backward()
         w = feats.grad[:, 0, 0].detach() / SH_C0
-    colour = (SH_C0 * feats[:, 0, 0] + 0.5).detach()
+    colour = (SH_C0 * feats[:, 0, 0] + 0.5).clamp_min(0).detach()
     return w, {k: v.detach() for k, v in g.items() if isinstance(v, torch.Tensor)}, colour, out.alpha.detach()
 
 

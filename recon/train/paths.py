@@ -118,6 +118,20 @@ def dlt_rows(projections: np.ndarray, pixels: np.ndarray) -> np.ndarray:
                            projections[:, 1] - pixels[:, 1:] * projections[:, 2]])
 
 
+def path_priors(knots: int, smoothness: float, level: float, up: np.ndarray | None) -> np.ndarray:
+    """(R, 3K) rows whose product with a path's flattened knots (3K,) are its prior residuals:
+    sqrt(smoothness) x the knots' second differences, and sqrt(level) x their heights' spread along
+    up (3,) (None or zero: no such rows)."""
+    second = np.zeros((max(knots - 2, 0), knots))
+    for k in range(knots - 2):
+        second[k, k:k + 3] = (1, -2, 1)
+    priors = [np.kron(second, np.eye(3)) * np.sqrt(smoothness)]
+    if up is not None and level > 0 and np.linalg.norm(up) > 0:
+        spread = np.eye(knots) - 1.0 / knots
+        priors.append(np.kron(spread, np.asarray(up, dtype=np.float64)[None]) * np.sqrt(level))
+    return np.concatenate(priors)
+
+
 def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndarray, knots: int,
                      smoothness: float, level: float, up: np.ndarray | None, robust_px: float = 0.0) -> np.ndarray:
     """(K, 3) knots of the smooth path whose point at each time times (T,) projects to pixels (T, 2)
@@ -133,14 +147,7 @@ def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndar
     another pull the path less (such frames still move it: a path scaled about the camera explains
     them, tests/test_paths.py)."""
     basis = hat_basis(times, knots)                                          # (T, K)
-    second = np.zeros((max(knots - 2, 0), knots))
-    for k in range(knots - 2):
-        second[k, k:k + 3] = (1, -2, 1)
-    priors = [np.kron(second, np.eye(3)) * np.sqrt(smoothness)]
-    if up is not None and level > 0 and np.linalg.norm(up) > 0:
-        spread = np.eye(knots) - 1.0 / knots
-        priors.append(np.kron(spread, np.asarray(up, dtype=np.float64)[None]) * np.sqrt(level))
-    prior = np.concatenate(priors)                                           # (R, 3K)
+    prior = path_priors(knots, smoothness, level, up)                        # (R, 3K)
     rows = dlt_rows(projections, pixels)                                     # (2T, 4)
     a = (np.concatenate([basis, basis])[:, :, None] * rows[:, None, :3]).reshape(len(rows), 3 * knots)
     start = np.linalg.lstsq(np.concatenate([a, prior]), np.concatenate([-rows[:, 3], np.zeros(len(prior))]),

@@ -44,11 +44,7 @@ def ray_sigma(knots: np.ndarray, times: np.ndarray, projections: np.ndarray, pix
     at its time (T,), for the fit to pixels (T, 2) through projections (T, 3, 4)."""
     k = len(knots)
     basis = P.hat_basis(times, k)
-    second = np.zeros((max(k - 2, 0), k))
-    for i in range(k - 2):
-        second[i, i:i + 3] = (1, -2, 1)
-    prior = np.concatenate([np.kron(second, np.eye(3)) * np.sqrt(settings.smoothness),
-                            np.kron(np.eye(k) - 1.0 / k, up[None]) * np.sqrt(settings.level)])
+    prior = P.path_priors(k, settings.smoothness, settings.level, up)
 
     def residuals(x):
         return np.concatenate([(P.to_pixels(projections, basis @ x.reshape(k, 3)) - pixels).ravel(), prior @ x])
