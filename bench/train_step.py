@@ -131,16 +131,18 @@ def measure_run(run: Path, progress: float | None, steps: int, warmup: int, thre
     return {**row, "run": str(run), "progress": p}
 
 
-def resume_held(run: Path, threads: int, progress: float | None = None,
+def resume_held(run: Path, threads: int | None = None, progress: float | None = None,
                 crop: float | None = None) -> tuple[Trainer, float]:
-    """RUN/checkpoints/latest.pt resumed on the dataset RUN/scene.json names, the schedule held at
-    `progress` (None: where the run ended, at most 0.99), on windows of `crop` of each side (None:
-    as the run trained). Returns the trainer and the progress it is held at."""
+    """RUN/checkpoints/latest.pt resumed on the dataset RUN/scene.json names, on `threads` threads
+    (None: the run's own), the schedule held at `progress` (None: where the run ended, at most
+    0.99), on windows of `crop` of each side (None: as the run trained). Returns the trainer and the
+    progress it is held at."""
     data = Path(json.loads((run / "scene.json").read_text())["dataset"])
     if not (data / "transforms.json").exists():
         raise SystemExit(f"error: {run / 'scene.json'} names the dataset {data}, which is not there (moved?)")
     scene = Scene(load_dataset(data))
-    trainer = Trainer.resume(run / "checkpoints" / "latest.pt", scene, log=lambda _: None, threads=threads)
+    trainer = Trainer.resume(run / "checkpoints" / "latest.pt", scene, log=lambda _: None,
+                             **({} if threads is None else {"threads": threads}))
     p = min(trainer.progress(), 0.99) if progress is None else progress
     trainer.progress_fn = lambda _: p
     if crop is not None:

@@ -26,13 +26,13 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from recon.data import load_dataset  # noqa: E402
+sys.path.insert(0, str(ROOT / "bench"))
 from recon.dtg import routing  # noqa: E402
 from recon.dtg.gaussians import SH_C0  # noqa: E402
 from recon.render import draw, inference_masks, render  # noqa: E402
 from recon.scene import Scene  # noqa: E402
-from recon.train.trainer import Trainer  # noqa: E402
 from rig.sim.family import FamilyScene  # noqa: E402
+from train_step import resume_held  # noqa: E402
 
 ROLES = ("shared", "rgb", "thermal")
 
@@ -46,7 +46,7 @@ def object_spheres(data: Path) -> tuple[FamilyScene, dict]:
 
 def weights_on(model, view, pixels: torch.Tensor, mask: torch.Tensor):
     """Per-Gaussian blend weight summed over pixels (H, W) bool of a thermal render of view, the
-    posed Gaussians (render inputs) and their colours (N,). The weight is read as the gradient of
+    posed Gaussians (render inputs), their colours (N,), the render's alpha (H, W) and image (H, W, 1). The weight is read as the gradient of
     the pixels' sum with respect to each Gaussian's colour (degree-0 thermal colour: linear; a
     Gaussian whose colour is clamped at 0, 3DGS's max(SH + 0.5, 0), reads no weight)."""
     with torch.enable_grad():
@@ -59,7 +59,7 @@ def weights_on(model, view, pixels: torch.Tensor, mask: torch.Tensor):
         (image[..., 0] * pixels).sum().backward()
         w = feats.grad[:, 0, 0].detach() / SH_C0
     colour = (SH_C0 * feats[:, 0, 0] + 0.5).clamp_min(0).detach()
-    return w, {k: v.detach() for k, v in g.items() if isinstance(v, torch.Tensor)}, colour, out.alpha.detach()
+    return w, {k: v.detach() for k, v in g.items() if isinstance(v, torch.Tensor)}, colour, out.alpha.detach(), image.detach()
 
 
 def kelvin(scene: Scene, value: float) -> float:
@@ -67,12 +67,10 @@ def kelvin(scene: Scene, value: float) -> float:
 
 
 def grade_run(run: Path, every: int) -> dict:
-    data = Path(json.loads((run / "scene.json").read_text())["dataset"])
-    scene = Scene(load_dataset(data))
-    trainer = Trainer.resume(run / "checkpoints" / "latest.pt", scene, log=lambda _: None)
-    model = trainer.model
-    fam, objects = object_spheres(data)
+    trainer, _ = resume_held(run)
+    model, scene = trainer.model, trainer.scene
     ds = scene.dataset
+    fam, objects = object_spheres(ds.root)
     labels = {int(i): v["name"] for i, v in ds.mask_labels.items()}
     roles = routing.hard_roles(model.gaussians["route_logits"].detach()) if "route_logits" in model.gaussians else None
     mask = inference_masks(model)
@@ -92,7 +90,7 @@ def grade_run(run: Path, every: int) -> dict:
             pix = (frame_mask == label) & ok
             if pix.sum() < 4:
                 continue
-            w, g, colour, alpha = weights_on(model, view, pix.float(), mask)
+            w, g, colour, alpha, image = weights_on(model, view, pix.float(), mask)
             centre, radius = objects[name].instance(view.time * fam.duration_s, fam.duration_s).bounding_sphere()
             on = (g["means"] - torch.as_tensor(centre, dtype=torch.float32)).norm(dim=1) <= 1.5 * radius
             n = float(pix.sum())
@@ -107,7 +105,6 @@ def grade_run(run: Path, every: int) -> dict:
             a["bg"] += float((1 - alpha)[pix].sum())
             a["gt_k"].append(float(gt_k[pix].median()))
             with torch.no_grad():
-                image, _ = draw(model, "thermal", g, view.camera)
                 a["err"] += float((scene.kelvin(image[..., 0]) - gt_k)[pix].abs().sum())
                 drop = (~on) & (w > 0)
                 alone = {**g, "opacities": torch.where(drop, torch.zeros_like(g["opacities"]), g["opacities"])}

@@ -5,21 +5,19 @@ and divided by their coverage: near 1, they fill in for a background (sky) a con
 draw; near 0, they tint surfaces the training views also see behind them.
 
     python bench/results/veils/veil_cover.py RUN 1375,899 > bench/results/veils/veil_cover.txt"""
-import json
 import sys
 from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[3]))
-from recon.data import load_dataset  # noqa: E402
+ROOT = Path(__file__).resolve().parents[3]
+sys.path.insert(0, str(ROOT)); sys.path.insert(0, str(ROOT / 'bench'))
 from recon.render import draw, inference_masks, render  # noqa: E402
-from recon.scene import Scene  # noqa: E402
-from recon.train.trainer import Trainer  # noqa: E402
+from train_step import resume_held  # noqa: E402
 
 run, ids = Path(sys.argv[1]), [int(x) for x in sys.argv[2].split(',')]
-scene = Scene(load_dataset(Path(json.loads((run / 'scene.json').read_text())['dataset'])))
-model = Trainer.resume(run / 'checkpoints' / 'latest.pt', scene, log=lambda _: None).model
+trainer, _ = resume_held(run)
+model, scene = trainer.model, trainer.scene
 mask = inference_masks(model)['thermal']
 over_background = covered = 0.0
 with torch.no_grad():
