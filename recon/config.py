@@ -207,6 +207,12 @@ class LossConfig:
     point_depth_static: float = 0.0
     point_depth_moving: float = 0.0
     point_depth_tolerance: float = 0.0   # relative depth error that costs nothing
+    # Distortion loss (Mip-NeRF 360, 2DGS; recon/splat/rasterization.py): weight of the mean over a
+    # render's pixels of sum_{i<j} w_i w_j (z_i - z_j)^2 / extent^2, for the modalities listed. It
+    # says that what a ray passes before its surface is empty: large faint Gaussians in free space
+    # ("veils", docs/training.md) cost loss where they tint the surfaces behind them. 0: off.
+    distortion: float = 0.0
+    distortion_modalities: tuple[str, ...] = ("rgb", "thermal")
 
 
 @dataclass

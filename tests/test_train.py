@@ -54,6 +54,32 @@ def test_dtg_loss_falls_and_heldout_psnr_rises(scene, tmp_path_factory):
     assert min(gains) > 0.5 and sorted(gains)[1] > 1.25, gains
 
 
+def test_distortion_loss_gathers_each_ray_s_weight_in_depth(scene):
+    """The same 150 iterations with the distortion loss at 1 and off: the weight spread in depth
+    along the training views' rays (what the loss charges) falls for both modalities. Measured:
+    RGB 0.188 -> 0.005, thermal 0.113 -> 0.007 (sums over every third view)."""
+    from recon.render import inference_masks, render
+
+    def spread(weight: float) -> dict[str, float]:
+        cfg = small_cfg(iterations=150)
+        cfg.loss.distortion = weight
+        tr = Trainer(cfg, scene, log=lambda _: None)
+        while not tr.done():
+            tr.step()
+        masks = inference_masks(tr.model)
+        out = {}
+        for modality in ("rgb", "thermal"):
+            views = scene.train[modality][::3]
+            with torch.no_grad():
+                out[modality] = sum(float(render(tr.model, modality, v.time, v.camera, mask=masks[modality],
+                                                 distortion=True)[1].distortion.mean()) for v in views)
+        return out
+
+    off, on = spread(0.0), spread(1.0)
+    for modality in ("rgb", "thermal"):
+        assert on[modality] < 0.3 * off[modality], (modality, off, on)
+
+
 def test_routing_stays_shared_until_the_schedule_allows(scene):
     cfg = small_cfg(iterations=90)
     tr = Trainer(cfg, scene, log=lambda _: None)

@@ -15,6 +15,9 @@ Conventions (identical in the dense reference of the tests):
   long Gaussian far to the side can cover the whole view (3DGS culls on depth only).
 - depth: expected camera z of the composited surface, sum(w_i z_i) / max(alpha, 1e-10); where
   alpha is 0 it is 0.
+- distortion (asked for): sum over pairs i < j of w_i w_j (z_i - z_j)^2 per pixel, the squared form
+  of Mip-NeRF 360's and 2DGS's distortion loss on the Gaussians' camera z; it is 0 where one
+  surface holds a pixel's weight and grows with weight spread in depth along the ray.
 """
 from __future__ import annotations
 
@@ -37,6 +40,7 @@ class RenderOutput:
     radii: torch.Tensor    # (N,) int32 pixel radius of the opacity-aware footprint; 0 = culled
     visible: torch.Tensor  # (N,) bool, radii > 0
     means2d: torch.Tensor  # (N, 2) projected pixel-space means; .grad holds dL/dmeans2d after backward
+    distortion: torch.Tensor | None = None  # (H, W) sum_{i<j} w_i w_j (z_i - z_j)^2, when asked for
 
 
 def _shape(x: torch.Tensor) -> str:
@@ -144,6 +148,7 @@ def rasterization(
     max_tile_pairs: int = MAX_TILE_PAIRS,
     window: tuple[int, int, int, int] | None = None,
     cull_beside: float | None = None,
+    distortion: bool = False,
 ) -> RenderOutput:
     """Render Gaussians to (H,W,C); differentiable in every tensor input (and viewmat).
 
@@ -158,6 +163,7 @@ def rasterization(
     cull_beside m: Gaussians whose centre (in front of the camera) projects more than m x the
     whole view's width (height) beyond its edges are culled, as the near plane culls (a window
     culls as its whole view does); None: off.
+    distortion: also return out.distortion (H, W), differentiable (two more channels to composite).
     """
     _check("means", means, (-1, 3))
     n = means.shape[0]
@@ -178,10 +184,26 @@ def rasterization(
                                                      sh_degree, threads)
     if means2d.requires_grad:
         means2d.retain_grad()
+    if distortion:
+        colors = torch.cat([colors, depth_moments(depths, radii)], 1)
     image, alpha, depth_sum = Rasterize.apply(
         means2d, conics, colors, opacities, depths, radii, width, height, max_tile_pairs, threads
     )
+    spread = None
+    if distortion:
+        image, m1, m2 = image[..., :channels], image[..., channels], image[..., channels + 1]
+        # with W = sum w, M1 = sum w m, M2 = sum w m^2: sum_{i<j} w_i w_j (m_i - m_j)^2 = W M2 - M1^2
+        spread = (alpha * m2 - m1 * m1).clamp_min(0.0)
     if background is not None:
         image = image + (1.0 - alpha)[..., None] * background.float()
     depth = depth_sum / alpha.clamp_min(DEPTH_EPS)
-    return RenderOutput(image=image, alpha=alpha, depth=depth, radii=radii, visible=radii > 0, means2d=means2d)
+    return RenderOutput(image=image, alpha=alpha, depth=depth, radii=radii, visible=radii > 0, means2d=means2d,
+                        distortion=spread)
+
+
+def depth_moments(depths: torch.Tensor, radii: torch.Tensor) -> torch.Tensor:
+    """(N, 2) channels m, m^2 with m = camera z less the drawn Gaussians' median (detached): the
+    distortion is the same for any shift, and a centred m keeps W M2 - M1^2 from cancelling in float32."""
+    drawn = depths.detach()[radii > 0]
+    m = depths - (drawn.median() if drawn.numel() else 0.0)
+    return torch.stack([m, m * m], 1)
