@@ -1,5 +1,7 @@
 """The rasterizer's distortion output (sum over pairs of w_i w_j (z_i - z_j)^2 per pixel) against
-the dense float64 reference summed pair by pair, values and gradients."""
+the dense float64 reference summed pair by pair, values and gradients (with distortion_moves False
+the reference's depths are detached in the pair sum alone, so the depth terms must be left out
+exactly for its gradients to match)."""
 import pytest
 import torch
 
@@ -18,7 +20,7 @@ def overlapping(seed: int, sh_coeffs=None):
     return g
 
 
-def distortion_and_grads(g, cam, reference: bool, sh_degree=None):
+def distortion_and_grads(g, cam, reference: bool, sh_degree=None, moves=True):
     dtype = torch.float64 if reference else torch.float32
     params = g.to(dtype).requires_grad_()
     view = cam.viewmat.detach().clone().to(dtype).requires_grad_()
@@ -26,10 +28,12 @@ def distortion_and_grads(g, cam, reference: bool, sh_degree=None):
     weights = torch.rand(cam.height, cam.width, generator=gen, dtype=torch.float64)
     wimg = torch.rand(cam.height, cam.width, 3, generator=gen, dtype=torch.float64)
     if reference:
-        r = ref.render(*params.tensors(), view, *cam.args()[1:], sh_degree=sh_degree, distortion=True)
+        r = ref.render(*params.tensors(), view, *cam.args()[1:], sh_degree=sh_degree, distortion=True,
+                      distortion_moves=moves)
         spread, image = r["distortion"], r["image"]
     else:
-        out = rasterization(*params.tensors(), view, *cam.args()[1:], sh_degree=sh_degree, distortion=True)
+        out = rasterization(*params.tensors(), view, *cam.args()[1:], sh_degree=sh_degree, distortion=True,
+                            distortion_moves=moves)
         spread, image = out.distortion, out.image
     ((spread.double() * weights).sum() + 0.1 * (image.double() * wimg).sum()).backward()
     grads = {name: t.grad.double() for name, t in zip(INPUTS, params.tensors())}
@@ -37,12 +41,12 @@ def distortion_and_grads(g, cam, reference: bool, sh_degree=None):
     return spread.detach().double(), image.detach().double(), grads
 
 
-@pytest.mark.parametrize("sh_degree", [None, 1])
-def test_distortion_and_its_gradients_match_pairwise_reference(sh_degree):
+@pytest.mark.parametrize("sh_degree,moves", [(None, True), (1, True), (None, False)])
+def test_distortion_and_its_gradients_match_pairwise_reference(sh_degree, moves):
     cam = default_camera(32, 24, fx=29.0, fy=26.0)
     g = overlapping(41, sh_coeffs=None if sh_degree is None else 4)
-    ours, ours_img, ours_g = distortion_and_grads(g, cam, reference=False, sh_degree=sh_degree)
-    theirs, theirs_img, theirs_g = distortion_and_grads(g, cam, reference=True, sh_degree=sh_degree)
+    ours, ours_img, ours_g = distortion_and_grads(g, cam, reference=False, sh_degree=sh_degree, moves=moves)
+    theirs, theirs_img, theirs_g = distortion_and_grads(g, cam, reference=True, sh_degree=sh_degree, moves=moves)
     assert theirs.max() > 0.05, "the scene must spread weight in depth for the test to mean anything"
     assert (ours - theirs).abs().max() <= 1e-4 * max(1.0, theirs.max().item())
     # the two extra channels leave the image as it was

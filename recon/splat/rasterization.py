@@ -149,6 +149,7 @@ def rasterization(
     window: tuple[int, int, int, int] | None = None,
     cull_beside: float | None = None,
     distortion: bool = False,
+    distortion_moves: bool = True,
 ) -> RenderOutput:
     """Render Gaussians to (H,W,C); differentiable in every tensor input (and viewmat).
 
@@ -163,7 +164,9 @@ def rasterization(
     cull_beside m: Gaussians whose centre (in front of the camera) projects more than m x the
     whole view's width (height) beyond its edges are culled, as the near plane culls (a window
     culls as its whole view does); None: off.
-    distortion: also return out.distortion (H, W), differentiable (two more channels to composite).
+    distortion: also return out.distortion (H, W), differentiable (two more channels to composite);
+    distortion_moves False: its gradient reaches the Gaussians through their blend weights only,
+    not through their depths (it can make a Gaussian fainter, not pull it along the ray).
     """
     _check("means", means, (-1, 3))
     n = means.shape[0]
@@ -185,7 +188,7 @@ def rasterization(
     if means2d.requires_grad:
         means2d.retain_grad()
     if distortion:
-        colors = torch.cat([colors, depth_moments(depths, radii)], 1)
+        colors = torch.cat([colors, depth_moments(depths if distortion_moves else depths.detach(), radii)], 1)
     image, alpha, depth_sum = Rasterize.apply(
         means2d, conics, colors, opacities, depths, radii, width, height, max_tile_pairs, threads
     )

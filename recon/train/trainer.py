@@ -240,7 +240,7 @@ class Trainer:
         spread = self.cfg.loss.distortion if modality in self.cfg.loss.distortion_modalities else 0.0
         image, out, g = render(self.model, modality, t, camera, p, sh_degree=self.active_sh_degree(modality, p),
                                mask=mask, rgb_geometry=rgb_geometry, background=background, frozen=frozen,
-                               distortion=spread > 0)
+                               distortion=spread > 0, distortion_moves=self.cfg.loss.distortion_moves)
         if spread > 0:
             d = out.distortion.mean() / self.extent ** 2
             reg = reg + spread * d
