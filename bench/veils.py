@@ -46,9 +46,10 @@ def object_spheres(data: Path) -> tuple[FamilyScene, dict]:
 
 def weights_on(model, view, pixels: torch.Tensor, mask: torch.Tensor):
     """Per-Gaussian blend weight summed over pixels (H, W) bool of a thermal render of view, the
-    posed Gaussians (render inputs), their colours (N,), the render's alpha (H, W) and image (H, W, 1). The weight is read as the gradient of
-    the pixels' sum with respect to each Gaussian's colour (degree-0 thermal colour: linear; a
-    Gaussian whose colour is clamped at 0, 3DGS's max(SH + 0.5, 0), reads no weight)."""
+    posed Gaussians (render inputs), their colours (N,), the render's alpha (H, W) and image
+    (H, W, 1). The weight is read as the gradient of the pixels' sum with respect to each Gaussian's
+    colour (degree-0 thermal colour: linear; a Gaussian whose colour is clamped at 0, 3DGS's
+    max(SH + 0.5, 0), reads no weight)."""
     with torch.enable_grad():
         image, out, g = render(model, "thermal", view.time, view.camera, mask=mask)
         feats = g["features"]

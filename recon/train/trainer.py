@@ -237,13 +237,13 @@ class Trainer:
             # while the window grows, the static scene learns from the (trimmed) steps outside it
             # only: at the window's few steps it would paint the moving objects where they are then
             frozen = self.model.gaussians["motion_basis"] == 0
-        spread = self.cfg.loss.distortion if modality in self.cfg.loss.distortion_modalities else 0.0
+        distortion_weight = self.cfg.loss.distortion if modality in self.cfg.loss.distortion_modalities else 0.0
         image, out, g = render(self.model, modality, t, camera, p, sh_degree=self.active_sh_degree(modality, p),
                                mask=mask, rgb_geometry=rgb_geometry, background=background, frozen=frozen,
-                               distortion=spread > 0, distortion_moves=self.cfg.loss.distortion_moves)
-        if spread > 0:
+                               distortion=distortion_weight > 0, distortion_moves=self.cfg.loss.distortion_moves)
+        if distortion_weight > 0:
             d = out.distortion.mean() / self.extent ** 2
-            reg = reg + spread * d
+            reg = reg + distortion_weight * d
             stats[f"distortion_{modality}"] = float(d.detach())
         if self.held is not None or not self.window.contains(t):
             # before discovery every step, then the steps outside the window: a trimmed loss, so

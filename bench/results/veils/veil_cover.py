@@ -11,7 +11,8 @@ from pathlib import Path
 import torch
 
 ROOT = Path(__file__).resolve().parents[3]
-sys.path.insert(0, str(ROOT)); sys.path.insert(0, str(ROOT / 'bench'))
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / 'bench'))
 from recon.render import draw, inference_masks, render  # noqa: E402
 from train_step import resume_held  # noqa: E402
 
