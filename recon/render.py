@@ -60,25 +60,26 @@ def render(model: DTGModel, modality: str, t: float, camera: Camera, progress: f
            sh_degree: int | None = None, mask: torch.Tensor | None = None,
            rgb_geometry: dict[str, torch.Tensor] | None = None, background: torch.Tensor | None = None,
            threads: int | None = None, frozen: torch.Tensor | None = None, distortion: bool = False,
-           distortion_moves: bool = True):
+           distortion_moves: bool = True, distortion_among: torch.Tensor | None = None):
     """-> (image (H, W, C) over the background, rasterizer output, the Gaussians used).
 
     sh_degree: active SH degree (None: all the model has); background (C,): None = the learned one;
     threads: rasterizer threads (None: torch's); frozen (N,) bool: Gaussians this render may not
     train (their parameters are seen detached); distortion: the output's distortion too
-    (distortion_moves: the rasterizer's)."""
+    (distortion_moves, distortion_among (N,): the rasterizer's)."""
     g = model.render_inputs(modality, t, progress, mask=mask, rgb_geometry=rgb_geometry,
                             in_view=in_view(camera, threads, model.cfg.cull_off_view))
     if frozen is not None:
         g = {**g, **{k: torch.where(frozen.view(-1, *[1] * (g[k].dim() - 1)), g[k].detach(), g[k])
                      for k in ("means", "quats", "log_scales", "opacities", "features")}}
-    image, out = draw(model, modality, g, camera, sh_degree, background, threads, distortion, distortion_moves)
+    image, out = draw(model, modality, g, camera, sh_degree, background, threads, distortion, distortion_moves,
+                      distortion_among)
     return image, out, g
 
 
 def draw(model: DTGModel, modality: str, g: dict[str, torch.Tensor], camera: Camera, sh_degree: int | None = None,
          background: torch.Tensor | None = None, threads: int | None = None, distortion: bool = False,
-         distortion_moves: bool = True):
+         distortion_moves: bool = True, distortion_among: torch.Tensor | None = None):
     """Rasterize a modality's render inputs g (DTGModel.render_inputs) in camera over the
     background (None: the learned one) -> (image (H, W, C), rasterizer output). Gaussians whose
     centre is far beside the view are culled when the model says so (ModelConfig.cull_off_view:
@@ -89,7 +90,7 @@ def draw(model: DTGModel, modality: str, g: dict[str, torch.Tensor], camera: Cam
                         feats[:, : (degree + 1) ** 2], camera.viewmat, camera.fx, camera.fy,
                         camera.cx, camera.cy, camera.width, camera.height, sh_degree=degree, threads=threads,
                         window=camera.window, cull_beside=model.cfg.cull_off_view, distortion=distortion,
-                        distortion_moves=distortion_moves)
+                        distortion_moves=distortion_moves, distortion_among=distortion_among)
     bg = model.backgrounds[modality] if background is None else background
     return out.image + (1 - out.alpha)[..., None] * bg, out
 

@@ -67,10 +67,11 @@ def eval_sh(sh: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.Tensor:
     return ((y_k[:, :, None] * sh[:, : len(basis)]).sum(1) + 0.5).clamp_min(0.0)
 
 
-def composite(means2d, conics, colors, opacities, depths, valid, width, height, pairs=False, pairs_move=True):
+def composite(means2d, conics, colors, opacities, depths, valid, width, height, pairs=False, pairs_move=True,
+              among=None):
     """Dense front-to-back compositing -> image_sum (H,W,C), alpha (H,W), depth_sum (H,W), and with
     pairs the distortion (H,W) sum_{i<j} w_i w_j (z_i - z_j)^2, summed pair by pair ((H W N N) memory;
-    pairs_move False: its z detached)."""
+    pairs_move False: its z detached; among (N,): each pair weighted s_i s_j)."""
     dt = means2d.dtype
     ys, xs = torch.meshgrid(torch.arange(height, dtype=dt), torch.arange(width, dtype=dt), indexing="ij")
     px, py = xs.reshape(-1, 1) + 0.5, ys.reshape(-1, 1) + 0.5
@@ -90,14 +91,17 @@ def composite(means2d, conics, colors, opacities, depths, valid, width, height, 
     if not pairs:
         return out
     z = depths[order] if pairs_move else depths[order].detach()
-    upper = torch.triu(torch.ones(z.shape[0], z.shape[0], dtype=torch.bool, device=z.device), 1)
+    upper = torch.triu(torch.ones(z.shape[0], z.shape[0], dtype=torch.bool, device=z.device), 1).to(z.dtype)
+    if among is not None:
+        s = among.to(z.dtype)[order]
+        upper = upper * s[:, None] * s[None, :]
     spread = ((w[:, :, None] * w[:, None, :]) * (z[:, None] - z[None, :]) ** 2 * upper).sum((1, 2))
     return (*out, spread.reshape(height, width))
 
 
 def render(means, quats, log_scales, opacities, features, viewmat, fx, fy, cx, cy, width, height,
            background=None, sh_degree=None, near_plane=0.01, cull_beside=None, distortion=False,
-           distortion_moves=True):
+           distortion_moves=True, distortion_among=None):
     """Dense reference of rasterization(); returns dict of image, alpha, depth, means2d (and distortion)."""
     means2d, conics, depths, _ = project(means, quats, log_scales, viewmat, fx, fy, cx, cy, width, height)
     valid = (depths >= near_plane) & (opacities >= 1.0 / 255.0)
@@ -114,7 +118,8 @@ def render(means, quats, log_scales, opacities, features, viewmat, fx, fy, cx, c
         campos = -viewmat[:3, :3].T @ viewmat[:3, 3]
         colors = eval_sh(features, means - campos, sh_degree)
     image, alpha, depth_sum, *spread = composite(means2d, conics, colors, opacities, depths, valid, width, height,
-                                                 pairs=distortion, pairs_move=distortion_moves)
+                                                 pairs=distortion, pairs_move=distortion_moves,
+                                                 among=distortion_among)
     if background is not None:
         image = image + (1 - alpha)[..., None] * background
     depth = depth_sum / alpha.clamp_min(1e-10)

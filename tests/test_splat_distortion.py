@@ -20,7 +20,7 @@ def overlapping(seed: int, sh_coeffs=None):
     return g
 
 
-def distortion_and_grads(g, cam, reference: bool, sh_degree=None, moves=True):
+def distortion_and_grads(g, cam, reference: bool, sh_degree=None, moves=True, among=None):
     dtype = torch.float64 if reference else torch.float32
     params = g.to(dtype).requires_grad_()
     view = cam.viewmat.detach().clone().to(dtype).requires_grad_()
@@ -29,11 +29,11 @@ def distortion_and_grads(g, cam, reference: bool, sh_degree=None, moves=True):
     wimg = torch.rand(cam.height, cam.width, 3, generator=gen, dtype=torch.float64)
     if reference:
         r = ref.render(*params.tensors(), view, *cam.args()[1:], sh_degree=sh_degree, distortion=True,
-                      distortion_moves=moves)
+                      distortion_moves=moves, distortion_among=among)
         spread, image = r["distortion"], r["image"]
     else:
         out = rasterization(*params.tensors(), view, *cam.args()[1:], sh_degree=sh_degree, distortion=True,
-                            distortion_moves=moves)
+                            distortion_moves=moves, distortion_among=None if among is None else among.float())
         spread, image = out.distortion, out.image
     ((spread.double() * weights).sum() + 0.1 * (image.double() * wimg).sum()).backward()
     grads = {name: t.grad.double() for name, t in zip(INPUTS, params.tensors())}
@@ -53,6 +53,35 @@ def test_distortion_and_its_gradients_match_pairwise_reference(sh_degree, moves)
     assert (ours_img - theirs_img).abs().max() <= 1e-5
     errors = {k: relative_error(ours_g[k], theirs_g[k]) for k in ours_g}
     assert max(errors.values()) <= TOL, errors
+
+
+@pytest.mark.parametrize("moves", [True, False])
+def test_distortion_among_marked_gaussians_matches_reference_and_leaves_the_rest_out(moves):
+    """A 0/1 mask counts only the pairs of marked Gaussians: values and gradients against the
+    reference's pair sum weighted s_i s_j."""
+    cam = default_camera(32, 24, fx=29.0, fy=26.0)
+    g = overlapping(43)
+    among = (torch.arange(60) % 3 != 0).double()
+    ours, _, ours_g = distortion_and_grads(g, cam, reference=False, moves=moves, among=among)
+    theirs, _, theirs_g = distortion_and_grads(g, cam, reference=True, moves=moves, among=among)
+    everyone, _, _ = distortion_and_grads(g, cam, reference=True, moves=moves)
+    assert theirs.max() > 0.05 and (everyone - theirs).abs().max() > 0.05, "the mask must change the sum"
+    assert (ours - theirs).abs().max() <= 1e-4 * max(1.0, theirs.max().item())
+    errors = {k: relative_error(ours_g[k], theirs_g[k]) for k in ours_g}
+    assert max(errors.values()) <= TOL, errors
+
+
+def test_distortion_among_nobody_is_zero_and_among_everyone_is_the_plain_sum():
+    cam = default_camera(32, 24, fx=29.0, fy=26.0)
+    g = overlapping(44)
+    plain = rasterization(*g.tensors(), *cam.args(), distortion=True).distortion
+    ones = rasterization(*g.tensors(), *cam.args(), distortion=True, distortion_among=torch.ones(60)).distortion
+    zeros = rasterization(*g.tensors(), *cam.args(), distortion=True, distortion_among=torch.zeros(60)).distortion
+    assert plain.max() > 0.05
+    assert (ones - plain).abs().max() <= 1e-4 * plain.max().item()
+    assert zeros.abs().max() == 0
+    with pytest.raises(ValueError, match="distortion_among"):
+        rasterization(*g.tensors(), *cam.args(), distortion=True, distortion_among=torch.ones(59))
 
 
 def test_distortion_is_zero_for_one_surface_and_grows_with_depth_gap():

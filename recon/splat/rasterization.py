@@ -150,6 +150,7 @@ def rasterization(
     cull_beside: float | None = None,
     distortion: bool = False,
     distortion_moves: bool = True,
+    distortion_among: torch.Tensor | None = None,
 ) -> RenderOutput:
     """Render Gaussians to (H,W,C); differentiable in every tensor input (and viewmat).
 
@@ -167,6 +168,8 @@ def rasterization(
     distortion: also return out.distortion (H, W), differentiable (two more channels to composite);
     distortion_moves False: its gradient reaches the Gaussians through their blend weights only,
     not through their depths (it can make a Gaussian fainter, not pull it along the ray).
+    distortion_among (N,) >= 0, constant: the pairs counted are weighted s_i s_j, so a 0/1 mask
+    counts the pairs among the Gaussians it marks only (one more channel); None: all pairs.
     """
     _check("means", means, (-1, 3))
     n = means.shape[0]
@@ -174,6 +177,10 @@ def rasterization(
     _check("log_scales", log_scales, (n, 3))
     _check("opacities", opacities, (n,))
     _check("viewmat", viewmat, (4, 4), (torch.float32, torch.float64))
+    if distortion_among is not None:
+        if not distortion:
+            raise ValueError("distortion_among is given but distortion is False")
+        _check("distortion_among", distortion_among, (n,), (torch.float32, torch.float64, torch.bool))
     intr = intrinsics(fx, fy, cx, cy, width, height, near_plane, window, cull_beside)
     threads = torch.get_num_threads() if threads is None else int(threads)
     if threads < 1:
@@ -188,15 +195,19 @@ def rasterization(
     if means2d.requires_grad:
         means2d.retain_grad()
     if distortion:
-        colors = torch.cat([colors, depth_moments(depths if distortion_moves else depths.detach(), radii)], 1)
+        moments = depth_moments(depths if distortion_moves else depths.detach(), radii, distortion_among)
+        colors = torch.cat([colors, moments], 1)
     image, alpha, depth_sum = Rasterize.apply(
         means2d, conics, colors, opacities, depths, radii, width, height, max_tile_pairs, threads
     )
     spread = None
     if distortion:
-        image, m1, m2 = image[..., :channels], image[..., channels], image[..., channels + 1]
+        extra = image[..., channels:]
+        image = image[..., :channels]
         # with W = sum w, M1 = sum w m, M2 = sum w m^2: sum_{i<j} w_i w_j (m_i - m_j)^2 = W M2 - M1^2
-        spread = (alpha * m2 - m1 * m1).clamp_min(0.0)
+        # (weighted by s: S = sum w s, M1 = sum w s m, M2 = sum w s m^2)
+        total, m1, m2 = (alpha, extra[..., 0], extra[..., 1]) if distortion_among is None else extra.unbind(-1)
+        spread = (total * m2 - m1 * m1).clamp_min(0.0)
     if background is not None:
         image = image + (1.0 - alpha)[..., None] * background.float()
     depth = depth_sum / alpha.clamp_min(DEPTH_EPS)
@@ -204,9 +215,13 @@ def rasterization(
                         distortion=spread)
 
 
-def depth_moments(depths: torch.Tensor, radii: torch.Tensor) -> torch.Tensor:
+def depth_moments(depths: torch.Tensor, radii: torch.Tensor, among: torch.Tensor | None = None) -> torch.Tensor:
     """(N, 2) channels m, m^2 with m = camera z less the drawn Gaussians' median (detached): the
-    distortion is the same for any shift, and a centred m keeps W M2 - M1^2 from cancelling in float32."""
+    distortion is the same for any shift, and a centred m keeps W M2 - M1^2 from cancelling in float32.
+    among (N,) >= 0: (N, 3) channels s, s m, s m^2 with s = among (detached), for S M2 - M1^2."""
     drawn = depths.detach()[radii > 0]
     m = depths - (drawn.median() if drawn.numel() else 0.0)
-    return torch.stack([m, m * m], 1)
+    if among is None:
+        return torch.stack([m, m * m], 1)
+    s = among.detach().to(m.dtype)
+    return torch.stack([s, s * m, s * m * m], 1)

@@ -238,9 +238,13 @@ class Trainer:
             # only: at the window's few steps it would paint the moving objects where they are then
             frozen = self.model.gaussians["motion_basis"] == 0
         distortion_weight = self.cfg.loss.distortion if modality in self.cfg.loss.distortion_modalities else 0.0
+        among = None
+        if distortion_weight > 0 and self.cfg.loss.distortion_among == "static" and "motion_basis" in self.model.gaussians:
+            among = (self.model.gaussians["motion_basis"] == 0).float()
         image, out, g = render(self.model, modality, t, camera, p, sh_degree=self.active_sh_degree(modality, p),
                                mask=mask, rgb_geometry=rgb_geometry, background=background, frozen=frozen,
-                               distortion=distortion_weight > 0, distortion_moves=self.cfg.loss.distortion_moves)
+                               distortion=distortion_weight > 0, distortion_moves=self.cfg.loss.distortion_moves,
+                               distortion_among=among)
         if distortion_weight > 0:
             d = out.distortion.mean() / self.extent ** 2
             reg = reg + distortion_weight * d
