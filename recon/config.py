@@ -221,7 +221,8 @@ class LossConfig:
     # "static": the pairs among the Gaussians of no moving body (motion_basis 0) only, so a moving
     # object may pass in front of the scene behind it without cost (one more composited channel).
     # At "all" on the development seeds the outside moving hot objects went 26.1 -> 39.4 K (fading
-    # form) while the static cup's veils went. "all": every pair.
+    # form) while the static cup's veils went; at "static" they went 26.1 -> 39.5 K all the same
+    # (thermal only, weight 1; docs/training.md "The distortion loss"). "all": every pair.
     distortion_among: str = "all"
 
     def __post_init__(self):
