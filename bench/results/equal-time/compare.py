@@ -9,8 +9,10 @@ import statistics
 import sys
 
 runs = {(r["scene"], r["seed"], r["method"]): r for r in json.load(open(sys.argv[1]))["per_run"]}
-pairs = (("ed3dgs-thermal", "mae_k_thermal", "thermal MAE K", min),
-         ("ed3dgs-rgb", "psnr_rgb", "RGB PSNR dB", max))
+# (baseline, metric, label, whether dtg's value a beats the baseline's b)
+pairs = (("ed3dgs-thermal", "mae_k_thermal", "thermal MAE K", lambda a, b: a < b),
+         ("ed3dgs-rgb", "psnr_rgb", "RGB PSNR dB", lambda a, b: a > b))
+fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
 
 
 def value(scene, seed, method, key):
@@ -25,13 +27,12 @@ for scene in sorted({s for s, _, _ in runs}):
         both, wins = [], 0
         for seed in seeds:
             a, b = value(scene, seed, "dtg", key), value(scene, seed, other, key)
-            its = [value(scene, seed, m, "iterations") for m in ("dtg", other)]
             if a is None or b is None:
-                fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
                 print(f"  {seed}: {fmt(a)} vs {fmt(b)} (failed or missing)")
                 continue
             both.append((a, b))
-            wins += better(a, b) == a and a != b
+            wins += better(a, b)
+            its = [value(scene, seed, m, "iterations") for m in ("dtg", other)]
             print(f"  {seed}: {a:.2f} vs {b:.2f}  ({its[0]} / {its[1]} it)")
         if both:
             print(f"  median over {len(both)} seeds: {statistics.median(a for a, _ in both):.2f} vs "
