@@ -291,6 +291,11 @@ class PathConfig:
     whole_window: int = 3
     whole_track: tuple[float, float] = (0.6, 2.0)
     min_frames: int = 12          # whole frames a track needs (fewer: too little parallax to trust)
+    # True: frames where the blob is cut by one side of the image (an object entering, or near the
+    # frame's edge) count too, with only the centroid's coordinate along that side; a track then needs
+    # min_frames in all and min_whole whole ones (its body's size is read from a whole blob).
+    border_frames: bool = False
+    min_whole: int = 4
     knots: int = 11
     smoothness: float = 1.0       # weight of the knots' second differences (metres, per knot)
     level: float = 1e4            # weight of the knots' heights along up staying at their mean

@@ -54,6 +54,8 @@ class Blob:
     pixels: np.ndarray            # (area,) its pixels' flat indices (y * width + x), sorted
     width: int
     kelvin: float = float("nan")  # its pixels' median temperature (nan: not known)
+    cut: tuple = (False, False)   # touches a left/right (x) or top/bottom (y) border: that
+                                  # coordinate of its centroid is pulled inwards
 
     @property
     def diameter(self) -> float:
@@ -133,7 +135,8 @@ def path_priors(knots: int, smoothness: float, level: float, up: np.ndarray | No
 
 
 def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndarray, knots: int,
-                     smoothness: float, level: float, up: np.ndarray | None, robust_px: float = 0.0) -> np.ndarray:
+                     smoothness: float, level: float, up: np.ndarray | None, robust_px: float = 0.0,
+                     weights: np.ndarray | None = None) -> np.ndarray:
     """(K, 3) knots of the smooth path whose point at each time times (T,) projects to pixels (T, 2)
     by projections (T, 3, 4): least squares over the pixel errors, smoothness x the knots' second
     differences (metres) and level x their heights' spread along up (3,) (None or zero: no such
@@ -145,10 +148,14 @@ def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndar
 
     robust_px > 0: pixel errors beyond it count as soft-L1, so a few frames whose blob merged with
     another pull the path less (such frames still move it: a path scaled about the camera explains
-    them, tests/test_paths.py)."""
+    them, tests/test_paths.py).
+
+    weights (T, 2), 0 or 1 (None: all 1): which pixel coordinates count (a blob cut by the image's
+    left or right border has its centroid's x pulled inwards; its y still holds)."""
+    w = np.ones_like(pixels) if weights is None else np.asarray(weights, dtype=np.float64)
     basis = hat_basis(times, knots)                                          # (T, K)
     prior = path_priors(knots, smoothness, level, up)                        # (R, 3K)
-    rows = dlt_rows(projections, pixels)                                     # (2T, 4)
+    rows = dlt_rows(projections, pixels) * np.concatenate([w[:, 0], w[:, 1]])[:, None]   # (2T, 4)
     a = (np.concatenate([basis, basis])[:, :, None] * rows[:, None, :3]).reshape(len(rows), 3 * knots)
     start = np.linalg.lstsq(np.concatenate([a, prior]), np.concatenate([-rows[:, 3], np.zeros(len(prior))]),
                             rcond=None)[0]
@@ -159,7 +166,7 @@ def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndar
                                 np.concatenate([-rows[:, 3] * scale, np.zeros(len(prior))]), rcond=None)[0]
 
     def residuals(x: np.ndarray) -> np.ndarray:
-        return np.concatenate([(to_pixels(projections, basis @ x.reshape(knots, 3)) - pixels).ravel(), prior @ x])
+        return np.concatenate([((to_pixels(projections, basis @ x.reshape(knots, 3)) - pixels) * w).ravel(), prior @ x])
 
     if robust_px > 0:   # soft-L1 on every residual: the priors' are well below robust_px, so stay quadratic
         fit = least_squares(residuals, start, method="trf", loss="soft_l1", f_scale=robust_px, max_nfev=200 * len(start))
@@ -169,9 +176,11 @@ def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndar
 
 
 def reprojection_errors(knots: np.ndarray, times: np.ndarray, projections: np.ndarray,
-                        pixels: np.ndarray) -> np.ndarray:
-    """(T,) pixel distance between each fitted point's projection and its observed pixel."""
-    return np.linalg.norm(to_pixels(projections, hat_basis(times, len(knots)) @ knots) - pixels, axis=1)
+                        pixels: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """(T,) pixel distance between each fitted point's projection and its observed pixel, over the
+    coordinates weights (T, 2) keep (None: both)."""
+    d = to_pixels(projections, hat_basis(times, len(knots)) @ knots) - pixels
+    return np.linalg.norm(d if weights is None else d * weights, axis=1)
 
 
 def frame_blobs(kelvin: np.ndarray, valid: np.ndarray | None, time: float, contrast: float,
@@ -191,10 +200,10 @@ def frame_blobs(kelvin: np.ndarray, valid: np.ndarray | None, time: float, contr
             x, y, bw, bh, area = stats[i]
             if not settings.min_area * h * w <= area <= settings.max_area * h * w:
                 continue
-            border = x == 0 or y == 0 or x + bw == w or y + bh == h
+            cut = (bool(x == 0 or x + bw == w), bool(y == 0 or y + bh == h))
             pixels = np.flatnonzero(labels == i)
-            out.append(Blob(time, centroids[i] + 0.5, int(area), sign, bool(border), pixels, w,
-                            float(np.median(kelvin.ravel()[pixels]))))
+            out.append(Blob(time, centroids[i] + 0.5, int(area), sign, cut[0] or cut[1], pixels, w,
+                            float(np.median(kelvin.ravel()[pixels])), cut))
     return out
 
 
@@ -318,38 +327,45 @@ def fit_track(track: list[Blob], cameras: dict, up: np.ndarray | None, settings:
     """The path of one track (cameras: time -> the thermal camera there), or None when it has too
     few whole frames or no path explains them."""
     whole = [b for b in track if not b.border]
-    if len(whole) < settings.min_frames:
+    # with border_frames, a blob cut by one side's border (not a corner) adds the coordinate along it
+    edge = [b for b in track if b.border and not all(b.cut)] if settings.border_frames else []
+    if len(whole) < (settings.min_whole if edge else settings.min_frames) or len(whole) + len(edge) < settings.min_frames:
         return None
     p25 = np.percentile([b.area for b in whole], 25)
     whole = [b for b, typical in zip(whole, typical_areas(whole, settings.whole_window))
              if settings.whole[0] <= b.area / typical <= settings.whole[1]
              and settings.whole_track[0] <= b.area / p25 <= settings.whole_track[1]]
-    if len(whole) < settings.min_frames:
+    if len(whole) < (settings.min_whole if edge else settings.min_frames) or len(whole) + len(edge) < settings.min_frames:
         return None
-    times = np.array([b.time for b in whole])
-    projections = np.stack([projection(cameras[b.time]) for b in whole])
-    pixels = np.stack([b.centroid for b in whole])
-    width = cameras[whole[0].time].width
+    used = sorted(whole + edge, key=lambda b: b.time)
+    times = np.array([b.time for b in used])
+    projections = np.stack([projection(cameras[b.time]) for b in used])
+    pixels = np.stack([b.centroid for b in used])
+    weights = np.array([[float(not b.cut[0]), float(not b.cut[1])] if b.border else [1.0, 1.0] for b in used])
+    width = cameras[used[0].time].width
     knots = triangulate_path(times, projections, pixels, settings.knots, settings.smoothness, settings.level, up,
-                             settings.robust_px * width / 160)
-    error = float(np.median(reprojection_errors(knots, times, projections, pixels))) * 160 / width
-    r = max(range(len(whole)), key=lambda i: (whole[i].area, -abs(whole[i].time - 0.5)))
-    ref, cam = whole[r], cameras[whole[r].time]
+                             settings.robust_px * width / 160, weights)
+    error = float(np.median(reprojection_errors(knots, times, projections, pixels, weights))) * 160 / width
+    r = max((i for i, b in enumerate(used) if not b.border), key=lambda i: (used[i].area, -abs(used[i].time - 0.5)))
+    ref, cam = used[r], cameras[used[r].time]
     point = hat_basis(np.array([ref.time]), settings.knots)[0] @ knots
     depth = float(projections[r, 2, :3] @ point + projections[r, 2, 3])
     if depth <= 0 or error > settings.max_reprojection:
         return None
     radius = np.sqrt(ref.area / np.pi) * depth / cam.fx
     return TrackedPath(torch.as_tensor(knots, dtype=torch.float32), ref.time, float(radius), error,
-                       still_point_error(projections, pixels, knots.mean(0)) * 160 / width, len(whole),
-                       {b.time: b for b in whole})
+                       still_point_error(projections, pixels, knots.mean(0), weights) * 160 / width, len(used),
+                       {b.time: b for b in used})
 
 
-def still_point_error(projections: np.ndarray, pixels: np.ndarray, start: np.ndarray) -> float:
+def still_point_error(projections: np.ndarray, pixels: np.ndarray, start: np.ndarray,
+                      weights: np.ndarray | None = None) -> float:
     """Median pixel error of the one still point that best explains pixels (T, 2) seen through
-    projections (T, 3, 4), refined from start (3,)."""
+    projections (T, 3, 4), refined from start (3,), over the coordinates weights (T, 2) keep."""
+    w = np.ones_like(pixels) if weights is None else weights
+
     def residuals(x: np.ndarray) -> np.ndarray:
-        return (to_pixels(projections, x) - pixels).ravel()
+        return ((to_pixels(projections, x) - pixels) * w).ravel()
     x = least_squares(residuals, start, method="lm").x
     return float(np.median(np.linalg.norm(residuals(x).reshape(-1, 2), axis=1)))
 
