@@ -277,8 +277,8 @@ def test_blobs_cut_by_one_border_add_the_coordinate_along_it():
                                          viewmat=torch.as_tensor(np.vstack([np.linalg.inv(k) @ m, [0, 0, 0, 1]])))
                for t, m in zip(times, projections)}
     up = np.array([0, 0, 1.0])
-    assert P.fit_track(blobs, cameras, up, P.PathConfig()) is None
-    path = P.fit_track(blobs, cameras, up, P.PathConfig(border_frames=True))
+    assert P.fit_track(blobs, cameras, up, P.PathConfig(border_frames=False)) is None
+    path = P.fit_track(blobs, cameras, up, P.PathConfig())             # border_frames: the default
     assert path is not None and path.frames == 40 and not path.seen[times[1]].cut[1]
     off = np.linalg.norm(path.at(torch.as_tensor(times)).numpy() - truth, axis=1)
     assert np.median(off) < 0.1

@@ -12,7 +12,8 @@ triangulation"). Here
 2. blobs of one level are linked over time into tracks (nearest predicted centroid, similar area);
 3. a track's frames where its blob is whole (not on the border, its area near that of its
    neighbours in the track: not cut, not merged; an object nearing the camera grows smoothly) give
-   one ray per instant, and a path with `knots` knots, linear between
+   one ray per instant, and those where one side of the image cuts it the coordinate along that side
+   (`border_frames`), and a path with `knots` knots, linear between
    them, smooth (second differences) and level (its height along up nearly constant: things move
    on a table or a floor), is fitted to them: linear least squares, then Levenberg-Marquardt on
    the pixel errors;
@@ -26,7 +27,8 @@ triangulation"). Here
 On the simulator's development seeds 40-43 (`bench/results/tracked-paths/probe_paths.txt`, with
 the blob size judged against the whole track's) this found 10 of the 13 moving objects, each path
 0.7-9 cm from the object's centre (median over time), and no path where nothing moves; on seeds
-40-49 25 of 33 with today's rule (`bench/results/whole-window/probe-dev-after.txt`). Most it misses
+40-49 25 of 33 with the rule of 2026-12-04 (`bench/results/whole-window/probe-dev-after.txt`), 26
+with `border_frames` (`bench/results/border-frames/probe-dev-after.txt`). Most it misses
 overlap a hot cup in the image for most of the sequence. With the simulator's masks as blobs the
 same fit is 1-7 cm off. The bodies' paths that the training loss tracks were 0.2-1 m off along the
 training rays.
