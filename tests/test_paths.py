@@ -255,9 +255,10 @@ def test_blobs_cut_by_one_border_add_the_coordinate_along_it():
     """A ball on a half circle whose blob is whole in 8 of 40 frames and cut by the image's left
     border in the other 32 (its centroid pulled 3 px inwards; drawn frames flag the cut side, a
     corner both). Whole frames alone are too few for a path (fitted anyway: 40 cm off). With
-    `border_frames` each cut frame adds its centroid's y: the path is found within 10 cm of the ball
-    (measured 6.5 cm: the sweep is horizontal, so x carries most of the parallax); the cut frames
-    taken whole, their pulled x included, put it 16 cm off."""
+    `border_frames` each cut frame adds its centroid's y and counts as half a frame: the path is
+    found within 10 cm of the ball (measured 6.5 cm: the sweep is horizontal, so x carries most of
+    the parallax); the cut frames taken whole, their pulled x included, put it 16 cm off. 8 whole
+    and 5 cut frames are too few."""
     f = np.full((120, 160), 295.0)
     disc(f, (2, 60), 6, 340)
     disc(f, (157, 118), 6, 340)
@@ -282,5 +283,7 @@ def test_blobs_cut_by_one_border_add_the_coordinate_along_it():
     assert path is not None and path.frames == 40 and not path.seen[times[1]].cut[1]
     off = np.linalg.norm(path.at(torch.as_tensor(times)).numpy() - truth, axis=1)
     assert np.median(off) < 0.1
+    few = [b for i, b in enumerate(blobs) if i in whole or i < 7]     # 8 whole + 5 cut: 10.5 frames' worth
+    assert P.fit_track(few, cameras, up, P.PathConfig()) is None
     taken_whole = P.triangulate_path(times, projections, np.stack([b.centroid for b in blobs]), 11, 1.0, 1e4, up)
     assert np.median(np.linalg.norm(P.hat_basis(times, 11) @ taken_whole - truth, axis=1)) > 2 * np.median(off)
