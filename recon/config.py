@@ -294,10 +294,10 @@ class PathConfig:
     # True: frames where the blob is cut by one side of the image (an object entering, or near the
     # frame's edge) count too, as half a frame each, with only the centroid's coordinate along that
     # side; a track then needs min_frames in all and min_whole whole ones (its body's size is read
-    # from a whole blob; 4 not tuned). Default from 2026-12-06: held-out seeds at 3 min, thermal MAE inside 1.75 -> 1.52 K,
-    # outside 2.07 -> 1.68 K, moving region 9.89 -> 8.96 / 16.23 -> 16.20 K, moving-hot outside
-    # 26.7 -> 20.1 K, RGB 25.88 -> 25.88 / 18.39 -> 19.18 dB; lower MAE on 4 and 5 of 8 seeds
-    # (bench/results/border-frames; docs/training.md).
+    # from a whole blob; 4 not tuned). Default from 2026-12-06: held-out seeds at 3 min, thermal
+    # MAE inside 1.75 -> 1.52 K, outside 2.07 -> 1.68 K, moving region 9.89 -> 8.96 / 16.23 ->
+    # 16.20 K, moving-hot outside 26.7 -> 20.1 K, RGB 25.88 -> 25.88 / 18.39 -> 19.18 dB; lower MAE
+    # on 4 and 5 of 8 seeds (bench/results/border-frames; docs/training.md).
     border_frames: bool = True
     min_whole: int = 4
     knots: int = 11

@@ -327,7 +327,7 @@ def typical_areas(blobs: list[Blob], window: int) -> np.ndarray:
 
 def fit_track(track: list[Blob], cameras: dict, up: np.ndarray | None, settings: PathConfig) -> TrackedPath | None:
     """The path of one track (cameras: time -> the thermal camera there), or None when it has too
-    few whole frames or no path explains them."""
+    few whole (and, with border_frames, cut) frames or no path explains them."""
     whole = [b for b in track if not b.border]
     # with border_frames, a blob cut by one side's border (not a corner) adds the coordinate along it,
     # and counts as half a frame: one coordinate of two (a track of mostly cut frames leaves the depth
