@@ -131,6 +131,21 @@ struct GaussianParams {
   float mx, my, a, b, c, o, z;
 };
 
+// A tile's list visits Gaussians scattered over memory, and each visit's strips wait on its
+// parameters: the loops ask for the entry kAhead places on (8 beat 16; docs/rasterizer.md,
+// "Prefetch and per-channel builds").
+constexpr int kAhead = 8;
+inline void prefetch_gaussian(const RasterScene& s, const BinView& bins, const float* cut, int32_t g) {
+  __builtin_prefetch(s.means2d + 2 * (int64_t)g);
+  __builtin_prefetch(s.conics + 3 * (int64_t)g);
+  __builtin_prefetch(s.conics + 3 * (int64_t)g + 2);
+  __builtin_prefetch(s.opacities + g);
+  __builtin_prefetch(s.depths + g);
+  __builtin_prefetch(s.colors + (int64_t)g * s.channels);
+  __builtin_prefetch(bins.boxes + 4 * (int64_t)g);
+  __builtin_prefetch(cut + g);
+}
+
 inline GaussianParams load_gaussian(const RasterScene& s, int32_t g) {
   return {s.means2d[2 * g], s.means2d[2 * g + 1], s.conics[3 * g], s.conics[3 * g + 1],
           s.conics[3 * g + 2], s.opacities[g], s.depths[g]};
@@ -253,9 +268,14 @@ void bin_gaussians(const RasterScene& s, int64_t max_pairs, int threads, Binning
   }
 }
 
-void rasterize_forward(const RasterScene& s, const BinView& bins, float* image, float* alpha,
-                       float* depth, float* final_T, int32_t* last, int threads) {
-  const int C = s.channels;
+namespace {
+
+// The compositing loops, compiled once per common channel count (kC; 0: any, s.channels): with C
+// known the per-channel loops unroll (docs/rasterizer.md, "Prefetch and per-channel builds").
+template <int kC>
+void forward_impl(const RasterScene& s, const BinView& bins, float* image, float* alpha,
+                  float* depth, float* final_T, int32_t* last, int threads) {
+  const int C = kC > 0 ? kC : s.channels;
   const int64_t n_tiles = (int64_t)bins.tiles_x * bins.tiles_y;
   const std::vector<float> cut = power_cutoffs(s, std::max(1, threads));
 #pragma omp parallel num_threads(std::max(1, threads))
@@ -285,6 +305,7 @@ void rasterize_forward(const RasterScene& s, const BinView& bins, float* image, 
       std::fill(acc, acc + (size_t)C * kTilePixels, 0.f);
       const int64_t k0 = bins.offsets[tile], k1 = bins.offsets[tile + 1];
       for (int64_t k = k0; k < k1 && live > 0; ++k) {
+        if (k + kAhead < k1) prefetch_gaussian(s, bins, cut.data(), bins.ids[k + kAhead]);
         const int32_t g = bins.ids[k];
         const GaussianParams gp = load_gaussian(s, g);
         const TileBox tb = tile_box(bins.boxes + 4 * (int64_t)g, px0, py0);
@@ -348,11 +369,12 @@ void rasterize_forward(const RasterScene& s, const BinView& bins, float* image, 
   }
 }
 
-void rasterize_backward(const RasterScene& s, const BinView& bins, const float* final_T,
-                        const int32_t* last, const float* v_image, const float* v_alpha,
-                        const float* v_depth, float* v_means2d, float* v_conics, float* v_colors,
-                        float* v_opacities, float* v_depths, int threads) {
-  const int C = s.channels;
+template <int kC>
+void backward_impl(const RasterScene& s, const BinView& bins, const float* final_T,
+                   const int32_t* last, const float* v_image, const float* v_alpha,
+                   const float* v_depth, float* v_means2d, float* v_conics, float* v_colors,
+                   float* v_opacities, float* v_depths, int threads) {
+  const int C = kC > 0 ? kC : s.channels;
   const int stride = 7 + C;  // per-Gaussian gradient record: mx my a b c o z colour...
   const int64_t n = s.n;
   const int64_t n_tiles = (int64_t)bins.tiles_x * bins.tiles_y;
@@ -419,6 +441,11 @@ void rasterize_backward(const RasterScene& s, const BinView& bins, const float* 
       }
       const int64_t k0 = bins.offsets[tile];
       for (int64_t k = k0 + kmax; k >= k0; --k) {
+        if (k - kAhead >= k0) {
+          const int32_t ga = bins.ids[k - kAhead];
+          prefetch_gaussian(s, bins, cut.data(), ga);
+          __builtin_prefetch(first.data() + ga);
+        }
         const int32_t g = bins.ids[k];
         const GaussianParams gp = load_gaussian(s, g);
         const TileBox tb = tile_box(bins.boxes + 4 * (int64_t)g, px0, py0);
@@ -514,5 +541,32 @@ void rasterize_backward(const RasterScene& s, const BinView& bins, const float* 
     }
   }
 }
+
+}  // namespace
+
+// Channel counts the product renders: RGB 3, thermal 1, each plus 2 or 3 distortion moments.
+#define SPLAT_BY_CHANNELS(impl, ...)      \
+  switch (s.channels) {                   \
+    case 1: return impl<1>(__VA_ARGS__);  \
+    case 3: return impl<3>(__VA_ARGS__);  \
+    case 4: return impl<4>(__VA_ARGS__);  \
+    case 5: return impl<5>(__VA_ARGS__);  \
+    case 6: return impl<6>(__VA_ARGS__);  \
+    default: return impl<0>(__VA_ARGS__); \
+  }
+
+void rasterize_forward(const RasterScene& s, const BinView& bins, float* image, float* alpha,
+                       float* depth, float* final_T, int32_t* last, int threads) {
+  SPLAT_BY_CHANNELS(forward_impl, s, bins, image, alpha, depth, final_T, last, threads)
+}
+
+void rasterize_backward(const RasterScene& s, const BinView& bins, const float* final_T,
+                        const int32_t* last, const float* v_image, const float* v_alpha,
+                        const float* v_depth, float* v_means2d, float* v_conics, float* v_colors,
+                        float* v_opacities, float* v_depths, int threads) {
+  SPLAT_BY_CHANNELS(backward_impl, s, bins, final_T, last, v_image, v_alpha, v_depth, v_means2d,
+                    v_conics, v_colors, v_opacities, v_depths, threads)
+}
+#undef SPLAT_BY_CHANNELS
 
 }  // namespace splat
