@@ -263,6 +263,10 @@ class PriorConfig:
     # outside -0.46 dB (bench/results/path-anchor; docs/training.md, "Holding the bodies on their
     # paths"): off.
     path_anchor: float = 0.0
+    # squared Mahalanobis distance of those knots from their paths under each path's own covariance
+    # (MotionBases.hold_cost, paths.knot_covariance): a path measured to a few cm is held, one the
+    # sweep left loose along the rays is not (path_anchor held both alike).
+    path_hold: float = 0.0
     max_aspect: float = 5.0
     knn: int = 8
     knn_falloff: float = 2000.0      # w = exp(-falloff d^2 / E^2), as the embedding smoothness
@@ -315,6 +319,9 @@ class PathConfig:
     robust_px: float = 0.0
     link_kelvin: float = 0.0
     max_reprojection: float = 2.0     # px (at 160 px wide): a worse fit is not one object's path
+    # px (at 160 px wide): the least pixel noise a path's covariance (paths.knot_covariance) assumes;
+    # a blob's centroid is not the projection of the object's centre (not chosen by measurement)
+    floor_px: float = 0.5
     min_still_error: float = 3.0  # px (at 160 px wide): a still point explains a blob this well or better
     # > 0: still things are found first (paths.still_groups): a 3D point whose projection explains
     # a blob (min_still_error) in at least this share of the thermal instants, so a cup that a ball

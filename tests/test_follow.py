@@ -223,6 +223,7 @@ def test_growing_time_carries_the_paths_anchors():
         motion.translation.copy_(torch.linspace(0, 1, 5)[None, :, None].expand(1, 5, 3))
     motion.anchors = motion.translation.detach() + 0.1
     motion.anchored = torch.tensor([[True, True, True, False, False]])
+    motion.anchor_precision = torch.eye(3).expand(1, 5, 3, 3) * torch.tensor([1.0, 2, 3, 0, 0])[None, :, None, None]
     pull = float(motion.anchor_pull(1.0).detach())
     model = SimpleNamespace(motion=motion)
     opt = torch.optim.Adam([{"params": [motion.rotation], "name": "motion_rotation"},
@@ -230,6 +231,8 @@ def test_growing_time_carries_the_paths_anchors():
     _resize_motion(model, opt, lambda x, moment: extend_knots(x, 2, zero=moment))
     assert motion.anchors.shape == motion.translation.shape == (1, 9, 3)
     assert motion.anchored.tolist() == [[True, True, True] + [False] * 6]
+    assert motion.anchor_precision.shape == (1, 9, 3, 3)
+    assert motion.anchor_precision[0, :, 0, 0].tolist() == [1, 2, 3] + [0] * 6
     # the same three knots held, now averaged over 9 knots instead of 5
     assert abs(float(motion.anchor_pull(1.0).detach()) - pull * 5 / 9) < 1e-6
     _resize_motion(model, opt, lambda x, moment: resample_rows(x, (x.shape[1] - 1) * 2 + 1, dim=1))

@@ -247,3 +247,27 @@ def test_anchor_pull_holds_only_the_anchored_bases_to_their_paths():
     with torch.no_grad():
         bases.translation[0, 3] -= 1.0                   # knot 3 back on the path: the pull is unchanged
     assert float(bases.anchor_pull(2.0).detach()) == pytest.approx(float(pull.detach()), rel=1e-6)
+
+
+def test_hold_cost_counts_each_knots_move_in_standard_deviations_of_its_path():
+    """A knot moved 5 cm along a direction its path measured to 5 cm costs 1 (before the mean over
+    knots), the same move across a direction measured to 1 cm costs 25; unanchored knots and bases
+    are free, and only the moved knot gets a gradient, pointing back along the move."""
+    bases = MotionBases(torch.zeros(2, 3), knots=4)
+    with torch.no_grad():
+        bases.anchored[0, :3] = True
+        bases.anchor_precision[0] = torch.diag(torch.tensor([1 / 0.05 ** 2, 1 / 0.01 ** 2, 1 / 0.01 ** 2]))
+        bases.translation[0, 3] += 1.0                   # knot 3 not measured: free
+        bases.translation[1] = 5.0                       # not anchored: free
+    assert float(bases.hold_cost().detach()) == 0
+    with torch.no_grad():
+        bases.translation[0, 1, 0] += 0.05
+    assert float(bases.hold_cost().detach()) == pytest.approx(1 / 4, rel=1e-4)
+    with torch.no_grad():
+        bases.translation[0, 1] = torch.tensor([0.0, 0.05, 0.0])
+    cost = bases.hold_cost()
+    assert float(cost.detach()) == pytest.approx(25 / 4, rel=1e-4)
+    cost.backward()
+    grad = bases.translation.grad
+    assert float(grad[1].abs().sum()) == 0 and float(grad[0, [0, 2, 3]].abs().sum()) == 0
+    assert float(grad[0, 1, 1]) > 0 and float(grad[0, 1, [0, 2]].abs().sum()) == 0

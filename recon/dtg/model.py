@@ -292,8 +292,11 @@ class DTGModel(nn.Module):
         if model.motion is not None and "motion.anchored" not in sd:  # written before paths were anchored
             sd = {**sd, "motion.anchors": torch.zeros_like(model.motion.translation),
                   "motion.anchored": torch.zeros(model.motion.translation.shape[:2], dtype=torch.bool)}
+        if model.motion is not None and "motion.anchor_precision" not in sd:  # written before paths had a covariance
+            sd = {**sd, "motion.anchor_precision": torch.zeros(*model.motion.translation.shape[:2], 3, 3)}
         if model.motion is not None:        # as many knots as the translation's
             model.motion.anchors, model.motion.anchored = sd["motion.anchors"].clone(), sd["motion.anchored"].clone()
+            model.motion.anchor_precision = sd["motion.anchor_precision"].clone()
         model.load_state_dict(sd)
         return model
 

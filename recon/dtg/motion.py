@@ -49,6 +49,9 @@ class MotionBases(nn.Module):
         # `anchored` (B, K) is set; PriorConfig.path_anchor holds them there (anchor_pull)
         self.register_buffer("anchors", torch.zeros(b, knots, 3))
         self.register_buffer("anchored", torch.zeros(b, knots, dtype=torch.bool))
+        # (B, K, 3, 3) inverse covariance (1/m^2) of the anchors by their own fit (paths.knot_covariance):
+        # PriorConfig.path_hold holds each knot as firmly as the thermal frames measured it (hold_cost)
+        self.register_buffer("anchor_precision", torch.zeros(b, knots, 3, 3))
 
     @property
     def count(self) -> int:
@@ -99,6 +102,18 @@ class MotionBases(nn.Module):
         the scene fits around it."""
         off = (self.translation - self.anchors) / extent
         return (off.pow(2).sum(-1) * self.anchored).mean(1).sum()
+
+    def hold_cost(self) -> torch.Tensor:
+        """Squared Mahalanobis distance of the anchored translation knots from their anchors under
+        the anchors' own covariance (how many standard deviations of the triangulation each knot
+        moved, squared), averaged over each basis' knots and summed over bases.
+
+        A path the rig's sweep measured well (a few cm) is held; one it could not measure along the
+        rays (tens of cm) is left to the training views: an isotropic pull (anchor_pull) held both
+        alike, and on the paths 8-17 cm off it cost what it gained elsewhere."""
+        off = self.translation - self.anchors
+        cost = torch.einsum("bki,bkij,bkj->bk", off, self.anchor_precision, off)
+        return (cost * self.anchored).mean(1).sum()
 
     def climb(self, up: torch.Tensor, extent: float) -> torch.Tensor:
         """Squared vertical speed of each basis' translation (in scene extents per knot) along

@@ -153,6 +153,7 @@ def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log
                 model.motion.translation[b] = path.at(knots) - pivots[b]
                 model.motion.anchors[b] = model.motion.translation[b]
                 model.motion.anchored[b] = measured_knots(knots, path)
+                model.motion.anchor_precision[b] = knot_precision(knots, path)
     return model, held
 
 
@@ -191,6 +192,16 @@ def measured_knots(knots: torch.Tensor, path: TrackedPath) -> torch.Tensor:
     seen = torch.tensor(sorted(path.seen), dtype=knots.dtype)
     step = float(knots[1] - knots[0]) if len(knots) > 1 else 1.0
     return (knots >= seen[0] - step) & (knots <= seen[-1] + step)
+
+
+def knot_precision(knots: torch.Tensor, path: TrackedPath, floor_m: float = 0.01) -> torch.Tensor:
+    """(K, 3, 3) inverse covariance (1/m^2) of path's positions at knot times knots (K,), each
+    covariance widened by floor_m^2 (a blob's centroid is not the object's centre, and a body's
+    pivot not its centroid); zeros when the path has no covariance."""
+    cov = path.covariance_at(knots.numpy())
+    if cov is None:
+        return torch.zeros(len(knots), 3, 3)
+    return torch.as_tensor(np.linalg.inv(cov + floor_m ** 2 * np.eye(3)), dtype=torch.float32)
 
 
 def sphere_points(centre: torch.Tensor, radius: float, count: int) -> torch.Tensor:

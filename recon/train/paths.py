@@ -80,11 +80,20 @@ class TrackedPath:
     still_error: float            # median px at 160 px wide of the best still point: large where it moves
     frames: int                   # whole frames fitted
     seen: dict                    # time -> Blob: the fitted frames' blobs
+    covariance: np.ndarray | None = None   # (3K, 3K) the knots' covariance (m^2) by the fit itself
 
     def at(self, t: torch.Tensor | float) -> torch.Tensor:
         """(T, 3) positions at times t (T,)."""
         t = torch.as_tensor(t, dtype=torch.float32).reshape(-1)
         return torch.as_tensor(hat_basis(t.numpy(), len(self.knots)), dtype=torch.float32) @ self.knots
+
+    def covariance_at(self, t: torch.Tensor | np.ndarray) -> np.ndarray | None:
+        """(T, 3, 3) covariance (m^2) of the positions at times t (T,), from the knots' (None: unknown)."""
+        if self.covariance is None:
+            return None
+        basis = hat_basis(np.asarray(t, dtype=np.float64).reshape(-1), len(self.knots))        # (T, K)
+        c = self.covariance.reshape(len(self.knots), 3, len(self.knots), 3)
+        return np.einsum("tk,kalb,tl->tab", basis, c, basis)
 
 
 def hat_basis(t: np.ndarray, knots: int) -> np.ndarray:
@@ -175,6 +184,26 @@ def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndar
     else:
         fit = least_squares(residuals, start, method="lm", max_nfev=200 * len(start))
     return fit.x.reshape(knots, 3)
+
+
+def knot_covariance(knots: np.ndarray, times: np.ndarray, projections: np.ndarray, pixels: np.ndarray,
+                    prior: np.ndarray, weights: np.ndarray, floor_px: float) -> np.ndarray:
+    """(3K, 3K) covariance (m^2) of a fitted path's knots (K, 3): s^2 (J^T J)^-1 of the fit's
+    residuals (pixel errors over the coordinates weights (T, 2) keep, and the priors' rows (R, 3K))
+    at the knots, s^2 the pixel errors' mean square, at least floor_px^2. Small where the rig's
+    sweep pins the path, large along the rays where it does not (a rig that glides as the object
+    does): how far training may move a body from its path before it contradicts the frames."""
+    basis = hat_basis(times, len(knots))
+    x = knots.ravel()
+
+    def pixel_rows(x: np.ndarray) -> np.ndarray:
+        return ((to_pixels(projections, basis @ x.reshape(-1, 3)) - pixels) * weights).ravel()
+    r = pixel_rows(x)
+    step = 1e-6
+    jac = np.stack([(pixel_rows(x + step * e) - r) / step for e in np.eye(len(x))], 1)
+    jac = np.concatenate([jac, prior])
+    s2 = max(float(np.sum(r ** 2)) / max(float(weights.sum()), 1.0), floor_px ** 2)
+    return s2 * np.linalg.pinv(jac.T @ jac)
 
 
 def reprojection_errors(knots: np.ndarray, times: np.ndarray, projections: np.ndarray,
@@ -362,9 +391,12 @@ def fit_track(track: list[Blob], cameras: dict, up: np.ndarray | None, settings:
     if depth <= 0 or error > settings.max_reprojection:
         return None
     radius = np.sqrt(ref.area / np.pi) * depth / cam.fx
+    covariance = knot_covariance(knots, times, projections, pixels,
+                                 path_priors(settings.knots, settings.smoothness, settings.level, up), weights,
+                                 settings.floor_px * width / 160)
     return TrackedPath(torch.as_tensor(knots, dtype=torch.float32), ref.time, float(radius), error,
                        still_point_error(projections, pixels, knots.mean(0), weights) * 160 / width, len(used),
-                       {b.time: b for b in used})
+                       {b.time: b for b in used}, covariance)
 
 
 def still_point_error(projections: np.ndarray, pixels: np.ndarray, start: np.ndarray,

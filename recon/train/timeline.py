@@ -51,6 +51,9 @@ def _resize_motion(model: DTGModel, optimizer: torch.optim.Optimizer, fn) -> Non
     # the paths' anchors follow their knots; a new knot is anchored only between anchored ones
     anchored = fn(motion.anchored[..., None].float(), True)[..., 0]
     motion.anchors, motion.anchored = fn(motion.anchors, True), anchored >= 1 - 1e-6
+    b, k = motion.anchor_precision.shape[:2]
+    precision = fn(motion.anchor_precision.reshape(b, k, 9), True)
+    motion.anchor_precision = precision.reshape(b, precision.shape[1], 3, 3)
 
 
 def _resize_trajectories(model: DTGModel, optimizer: torch.optim.Optimizer, fn) -> None:

@@ -329,6 +329,10 @@ class Trainer:
             pull = model.motion.anchor_pull(self.extent)
             reg = reg + self.cfg.priors.path_anchor * pull
             stats["basis_anchor"] = float(pull.detach())
+        if model.motion is not None and self.cfg.priors.path_hold > 0:
+            hold = model.motion.hold_cost()
+            reg = reg + self.cfg.priors.path_hold * hold
+            stats["basis_hold"] = float(hold.detach())
         if model.motion is not None and self.cfg.priors.level_paths > 0:
             climb = model.motion.climb(self.up, self.extent)
             reg = reg + self.cfg.priors.level_paths * climb
