@@ -271,6 +271,11 @@ class PriorConfig:
     # MAE 0.84 -> 0.84, 3.63 -> 3.61 K): it failed its rule before the held-out seeds
     # (bench/results/path-hold; docs/training.md, "Holding each path as firmly as it was measured"): off.
     path_hold: float = 0.0
+    # weight of priors.body_warmth: a body's members more than body_band_k from their body's median
+    # temperature pay for the excess (normalised units), so what a body's shape has too much of turns
+    # transparent instead of taking the background's temperature (not chosen yet)
+    body_temperature: float = 0.0
+    body_band_k: float = 10.0
     max_aspect: float = 5.0
     knn: int = 8
     knn_falloff: float = 2000.0      # w = exp(-falloff d^2 / E^2), as the embedding smoothness

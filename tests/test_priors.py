@@ -1,8 +1,9 @@
 """Motion priors (recon/dtg/priors.py) that price displacement."""
+import pytest
 import torch
 
 from recon.config import PriorConfig
-from recon.dtg.priors import MotionPriors
+from recon.dtg.priors import MotionPriors, body_warmth
 
 
 def test_residual_sparsity_prices_the_network_residual_not_the_bodies_motion():
@@ -27,3 +28,18 @@ def test_residual_sparsity_prices_the_network_residual_not_the_bodies_motion():
     assert (cosine > 0.999).all()                                 # descent shrinks every residual
     whole, stats = MotionPriors(PriorConfig(sparsity=0.5, sample=n), extent)(canonical, deformed, None, 0.5, 0.1, gen)
     assert stats["sparse"] > 2 * stats.get("residual", 0) + 0.2   # the bodies' motion is priced there
+
+
+def test_body_warmth_pulls_only_members_beyond_the_band_towards_their_own_bodys_median():
+    """A hot body (0.9) with one member at the background's temperature (0.2) and a cold body
+    (0.1) whose members lie within the band: only the hot body's outlier pays, 0.6 beyond the band
+    over 5 members, and its gradient warms it; static Gaussians and closed gates are free."""
+    colour = torch.tensor([0.9, 0.92, 0.2, 0.5, 0.1, 0.12, 0.0], requires_grad=True)
+    basis = torch.tensor([1, 1, 1, 0, 2, 2, 1.0])
+    members = torch.tensor([True, True, True, True, True, True, False])      # the last: gate closed
+    warmth = body_warmth(colour, basis, members, 0.1)
+    assert float(warmth) == pytest.approx(0.6 / 5, rel=1e-5)
+    warmth.backward()
+    assert float(colour.grad[2]) < 0 and float(colour.grad[[0, 1, 3, 4, 5, 6]].abs().sum()) == 0
+    none = body_warmth(colour, torch.zeros(7), members, 0.1)
+    assert float(none) == 0

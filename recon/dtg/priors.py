@@ -16,6 +16,12 @@ the deformation towards physically plausible motion:
 - residual sparsity: the same L1 price on a network's geometry residuals only (not on the rigid
   bodies' motion): with bodies, F_th may move any Gaussian in the thermal render, and without a
   price the whole static scene can slide where the thermal frames do not pin it;
+- one temperature per body: a rigid body's members (motion_basis > 0, gate open) whose thermal
+  colour lies more than a band beyond their body's median pay for the excess (``body_warmth``).
+  A sphere of Gaussians built on a can is wider than the can in places; fitted to the training
+  views, those parts turned the background's temperature instead of transparent, and from the
+  held-out rig they cover the can with cold patches (family-outside 45: 5 % of the can's body
+  weight at ~296 K, the can 22 K off);
 - anisotropy (a shape prior, PhysGaussian's): Gaussians longer than ``max_aspect`` times their
   width pay for it. Needles and sheets that fit the training sweep look like streaks from 17-45
   degrees beyond it.
@@ -149,3 +155,18 @@ class MotionPriors:
             total = total + cfg.smoothness * acc
             stats["smooth"] = float(acc.detach())
         return total, stats
+
+
+def body_warmth(colour: torch.Tensor, basis: torch.Tensor, members: torch.Tensor, band: float) -> torch.Tensor:
+    """Mean over body members of how far each one's thermal colour lies beyond `band` from its
+    body's median: relu(|c_i - median_b| - band). colour (N,) normalised temperature, basis (N,)
+    body index (0 = static), members (N,) bool which Gaussians count (the gate open), band in the
+    same units. The median is not differentiated: the members are pulled towards their body, not
+    the body towards its outliers. Zero without members."""
+    rows = torch.nonzero(members & (basis > 0)).view(-1)
+    if len(rows) == 0:
+        return colour.sum() * 0
+    c, b = colour.index_select(0, rows), basis.index_select(0, rows).long()
+    medians = torch.stack([c[b == k].detach().median() if bool((b == k).any()) else c.new_zeros(())
+                           for k in range(int(b.max()) + 1)])
+    return torch.relu((c - medians[b]).abs() - band).mean()

@@ -18,10 +18,10 @@ import torch
 from recon.alloc import retain_freed_memory
 from recon.config import TrainConfig, config_from_dict, config_to_dict
 from recon.dtg import routing
-from recon.dtg.gaussians import embedding_key
+from recon.dtg.gaussians import SH_C0, embedding_key
 from recon.dtg.losses import EmbeddingSmoothness, rgb_loss, thermal_loss, trimmed_l1
 from recon.dtg.model import DTGModel, check_params, time_rows
-from recon.dtg.priors import MotionPriors
+from recon.dtg.priors import MotionPriors, body_warmth
 from recon.dtg.strategy import Strategy
 from recon.render import inference_masks, render
 from recon.scene import Scene
@@ -333,6 +333,13 @@ class Trainer:
             hold = model.motion.hold_cost()
             reg = reg + self.cfg.priors.path_hold * hold
             stats["basis_hold"] = float(hold.detach())
+        if model.motion is not None and self.cfg.priors.body_temperature > 0 and "features_thermal" in model.gaussians:
+            g = model.gaussians
+            warmth = body_warmth(SH_C0 * g["features_thermal"][:, 0, 0] + 0.5, g["motion_basis"],
+                                 model.dynamic_gate().detach() > 0.5,
+                                 self.cfg.priors.body_band_k / float(self.scene.k_max - self.scene.k_min))
+            reg = reg + self.cfg.priors.body_temperature * warmth
+            stats["body_warmth"] = float(warmth.detach())
         if model.motion is not None and self.cfg.priors.level_paths > 0:
             climb = model.motion.climb(self.up, self.extent)
             reg = reg + self.cfg.priors.level_paths * climb
