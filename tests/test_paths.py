@@ -269,10 +269,12 @@ def test_the_thermal_frames_give_the_moving_objects_paths(family):
 def test_training_builds_its_bodies_on_the_tracked_paths(family, tmp_path):
     """With curriculum.tracked_paths a run starts with one body per path: its pivot where the path
     is at the body's instant, its translation knots along the path, and no growing window; a
-    resumed run keeps both."""
+    resumed run keeps both. The priors that read the bodies (path_hold, body_temperature) take
+    part in the loss, and the paths' precision is saved with the model."""
     scene, fam = family
     cfg = make_config("dtg", iterations=30, log_every=10**9, checkpoint_every=10**9, eval_every=10**9)
     cfg.curriculum.tracked_paths = True
+    cfg.priors.path_hold, cfg.priors.body_temperature = 0.1, 1.0
     messages = []
     tr = Trainer(cfg, scene, log=messages.append)
     found = P.tracked_paths(scene).moving
@@ -283,14 +285,17 @@ def test_training_builds_its_bodies_on_the_tracked_paths(family, tmp_path):
     for b, path in enumerate(found):
         assert torch.allclose(motion.pivots[b] + motion.translation[b].detach(), path.at(knots), atol=1e-5)
     assert motion.anchored.any(1).all() and torch.equal(motion.anchors, motion.translation.detach())
+    assert bool((motion.anchor_precision[motion.anchored] > 0).any())
     while not tr.done():
-        tr.step()
+        stats = tr.step()
     assert torch.isfinite(motion.translation).all()
+    assert stats["basis_hold"] >= 0 and stats["body_warmth"] >= 0
     tr.save_checkpoint(tmp_path / "latest.pt")
     back = Trainer.resume(tmp_path / "latest.pt", scene, log=messages.append)
     assert not back.window.enabled and back.model.motion.count == motion.count
     assert torch.equal(back.model.motion.translation, motion.translation)
     assert torch.equal(back.model.motion.anchors, motion.anchors) and torch.equal(back.model.motion.anchored, motion.anchored)
+    assert torch.equal(back.model.motion.anchor_precision, motion.anchor_precision)
 
 
 def test_blobs_cut_by_one_border_add_the_coordinate_along_it():

@@ -1,4 +1,4 @@
-"""Motion priors (recon/dtg/priors.py) that price displacement."""
+"""Priors (recon/dtg/priors.py): the ones that price displacement, and one temperature per body."""
 import pytest
 import torch
 
