@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 
 sys.path.insert(0, str(ROOT / "bench"))
 from recon.dtg import routing  # noqa: E402
-from recon.dtg.gaussians import SH_C0  # noqa: E402
+from recon.dtg.gaussians import SH_C0, sh_dc_to_value  # noqa: E402
 from recon.render import draw, inference_masks, render  # noqa: E402
 from recon.scene import Scene  # noqa: E402
 from rig.sim.family import FamilyScene  # noqa: E402
@@ -59,7 +59,7 @@ def weights_on(model, view, pixels: torch.Tensor, mask: torch.Tensor):
             feats.retain_grad()
         (image[..., 0] * pixels).sum().backward()
         w = feats.grad[:, 0, 0].detach() / SH_C0
-    colour = (SH_C0 * feats[:, 0, 0] + 0.5).clamp_min(0).detach()
+    colour = sh_dc_to_value(feats[:, 0, 0]).clamp_min(0).detach()
     return w, {k: v.detach() for k, v in g.items() if isinstance(v, torch.Tensor)}, colour, out.alpha.detach(), image.detach()
 
 

@@ -34,6 +34,11 @@ def value_to_sh_dc(value: torch.Tensor) -> torch.Tensor:
     return (value - 0.5) / SH_C0
 
 
+def sh_dc_to_value(dc: torch.Tensor) -> torch.Tensor:
+    """The rasterizer's degree-0 colour, C0 * dc + 0.5 (before its clamp at 0)."""
+    return SH_C0 * dc + 0.5
+
+
 def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
     """(N, 4) wxyz quaternions of any non-zero norm -> (N, 3, 3) rotation matrices."""
     q = q / q.norm(dim=1, keepdim=True).clamp_min(1e-12)

@@ -18,7 +18,7 @@ import torch
 from recon.alloc import retain_freed_memory
 from recon.config import TrainConfig, config_from_dict, config_to_dict
 from recon.dtg import routing
-from recon.dtg.gaussians import SH_C0, embedding_key
+from recon.dtg.gaussians import embedding_key, sh_dc_to_value
 from recon.dtg.losses import EmbeddingSmoothness, rgb_loss, thermal_loss, trimmed_l1
 from recon.dtg.model import DTGModel, check_params, time_rows
 from recon.dtg.priors import MotionPriors, body_warmth
@@ -335,7 +335,7 @@ class Trainer:
             stats["basis_hold"] = float(hold.detach())
         if model.motion is not None and self.cfg.priors.body_temperature > 0 and "features_thermal" in model.gaussians:
             g = model.gaussians
-            warmth = body_warmth(SH_C0 * g["features_thermal"][:, 0, 0] + 0.5, g["motion_basis"],
+            warmth = body_warmth(sh_dc_to_value(g["features_thermal"][:, 0, 0]), g["motion_basis"],
                                  model.dynamic_gate().detach() > 0.5,
                                  self.cfg.priors.body_band_k / float(self.scene.k_max - self.scene.k_min))
             reg = reg + self.cfg.priors.body_temperature * warmth
