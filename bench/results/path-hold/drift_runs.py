@@ -16,7 +16,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(ROOT)); sys.path.insert(0, str(ROOT / 'bench')); sys.path.insert(0, str(ROOT / 'bench/results/path-anchor'))
 from oracle import Oracle  # noqa: E402
-from probe_drift import grade  # noqa: E402
+from probe_drift import centres, grade  # noqa: E402
 from train_step import resume_held  # noqa: E402
 from recon.dtg.time_embedding import lerp_rows  # noqa: E402
 
@@ -30,11 +30,11 @@ for run in map(Path, sys.argv[1:]):
     truth = np.stack([[o.centre(k, t) for t in times] for k in range(len(o.objects))])
     eyes = np.stack([scene.views_at('thermal', float(t))[0].camera.center.double().numpy() for t in times])
     print(f'{run.parent.name} {run.name}')
-    if motion is None or motion.count == 0:
+    end = centres(trainer.model, times)
+    if end is None:
         print('   no bodies')
         continue
     start = np.stack([(motion.pivots + lerp_rows(motion.anchors, float(t), dim=1)).numpy() for t in times], 1)
-    end = np.stack([(motion.pivots + motion.at(float(t))[1]).numpy() for t in times], 1)
     objects = json.loads((run / 'metrics.json').read_text())['metrics']['objects']['thermal']
     names = [ob.name for ob in o.objects]
     for a, b in zip(grade(start, truth, eyes, names), grade(end, truth, eyes, names)):

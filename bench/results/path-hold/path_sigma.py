@@ -1,7 +1,7 @@
 """How well does a tracked path's own covariance (recon/train/paths.py knot_covariance) say how far
 it is from its object? Per development dataset, each moving path found: its median distance from
 the simulator's object it is nearest to, beside the median over its frames of the predicted
-standard deviation along the thermal camera's ray :
+standard deviation along the thermal camera's ray:
 
     python bench/results/path-hold/path_sigma.py DATA... > bench/results/path-hold/sigma-dev.txt
 """
