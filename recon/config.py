@@ -274,10 +274,9 @@ class PriorConfig:
     # weight of priors.body_warmth: a body's members more than body_band_k from their body's median
     # temperature pay for the excess (normalised units), so what a body's shape has too much of turns
     # transparent instead of taking the background's temperature. At 1: development seeds thermal
-    # MAE inside 0.85 -> 0.81 K, outside 3.47 -> 3.10 K (moving 17.3 -> 13.4 K); held-out outside
-    # 1.60 -> 1.54 K (6 of 8), moving-hot 20.9 -> 17.3 K, RGB -0.22 dB (bench/results/body-warmth;
-    # docs/training.md, "One temperature per body"); held-out inside 1.49 -> 1.33 K (5 of 8), moving
-    # 8.31 -> 8.36 K, RGB -0.02 dB. Off here: it reads the bodies, which only dtg builds (DTG_MOTION).
+    # MAE inside 0.85 -> 0.81 K, outside 3.47 -> 3.10 K (moving 17.3 -> 13.4 K); the held-out seeds
+    # that made it dtg's default are quoted at DTG_MOTION (bench/results/body-warmth;
+    # docs/training.md, "One temperature per body"). Off here: it reads the bodies, which only dtg builds.
     body_temperature: float = 0.0
     body_band_k: float = 10.0
     max_aspect: float = 5.0

@@ -10,7 +10,7 @@ became analytic (same values, other rounding). Over seeds 3, 5, 8, 11, 13, 22 an
 SSIM backward: bases clearly ahead on 22 (24.8-30.0 against 56.5-59.2 K) and on 47 with one of
 the two, level (within 1 K) on 3, 5, 8 and 11, behind on 13 (76 against 52-60 K). So the first
 test runs seed 22, where the bases' lead held under both, and asks for at most 0.7 of the
-network's error; the others use seed 47's box. They compare motion, so they train with
+network's error; the others use seed 47's box. That comparison is of motion, so `train()` turns
 `priors.body_temperature` off (dtg's default from 2026-12-07): with it on, seed 22 gave 44.3
 against 54.7 K, another flip of the same chaos, not a change in what the bases can track.
 """
