@@ -110,7 +110,7 @@ def run_one(job: dict) -> dict:
     wall = time.perf_counter() - t0
     row = {"scene": job["scene"], "seed": job["seed"], "rung": job["rung"][0], "iterations": trainer.iteration,
            "ms_per_it": 1000 * trainer.elapsed / trainer.iteration, "wall_s": round(wall, 1),
-           "gaussians": trainer.model.num_gaussians, "rollbacks": len(trainer.events),
+           "gaussians": trainer.model.num_gaussians, "rollbacks": sum(1 for e in trainer.events if not e.get("warning")),
            **{k: v for k, v in flatten(evaluate_model(trainer)).items() if v is not None},
            **train_fit_moving(trainer), **displacement(trainer)}
     print(json.dumps(row), flush=True)

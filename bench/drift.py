@@ -8,7 +8,8 @@ Two measures per evaluation (scene extents, median over 4096 Gaussians, 5 instan
 the largest distance from the canonical position (what the guard tests), and ``spread``, the
 largest distance from the Gaussian's own mean position over time. A spread much smaller than the
 offset would be a harmless gauge shift (canonical position + a constant offset renders the same);
-a spread near the offset is real motion over time. The end is graded like `recon eval` (per
+a spread near the offset is real motion over time. Each evaluation also records the held-out
+PSNR the trainer itself sees (``held_out_psnr_*``: what the guard can compare). The end is graded like `recon eval` (per
 region) on the held-out rig. Writes OUT/drift-SCENE-sSEED-METHOD.json (one thread, the
 protocol of bench/table.py).
 
@@ -92,8 +93,10 @@ def main() -> int:
     while not trainer.done():
         trainer.tick()
         if trainer.iteration % cfg.eval_every == 0:
+            held = {k: v for k, v in (trainer.history[-1] if trainer.history else {}).items() if k.startswith("psnr_")}
             curve.append({"iteration": trainer.iteration, "seconds": round(trainer.elapsed, 1),
-                          **motion(trainer.model, trainer.progress(), trainer.extent, trainer.iteration)})
+                          **motion(trainer.model, trainer.progress(), trainer.extent, trainer.iteration),
+                          **{f"held_out_{k}": v for k, v in held.items()}})
             print(curve[-1], flush=True)
     graded = evaluate_model(trainer)
     result = {"scene": args.scene, "seed": args.seed, "method": args.method, "minutes": args.minutes,

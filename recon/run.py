@@ -300,7 +300,7 @@ def train_and_finish(args, inp: Path, out: Path, kind: str, overrides: dict, fee
     print(json.dumps(summary["metrics"], indent=2))
     print(f"stopped: {summary['stop_reason']}")
     for event in trainer.events:
-        print(f"divergence: {event}")
+        print(f"{'warning' if event.get('warning') else 'divergence'}: {event}")
     print(f"{trainer.model.num_gaussians} Gaussians {summary['gaussians_per_role']}, "
           f"{summary['model_bytes'] / 1e6:.1f} MB, trained {summary['train_seconds']:.0f} s -> {out}")
     return 0

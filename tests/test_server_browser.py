@@ -82,6 +82,16 @@ def test_status_page_shows_live_training_and_capture(tmp_path):
             page.wait_for_function("() => document.getElementById('cap-state').textContent === 'closed'", timeout=90_000)
             assert text_int(page, "iteration") > first
 
+            # the guard's events as the trainer records them: a drift warning reads as one, not as a rollback
+            training.trainer.events += [
+                {"iteration": 7, "reason": "the deformation moves the median Gaussian 0.3 scene extents: watched, "
+                                           "not rolled back", "warning": True},
+                {"iteration": 9, "reason": "thermal loss is nan", "rolled_back_to": 0, "lr_scale": 0.5}]
+            page.wait_for_function("() => document.querySelectorAll('#events div').length === 2", timeout=10_000)
+            shown = [page.inner_text(f"#events div:nth-child({i})") for i in (1, 2)]
+            assert shown[0].startswith("⚠ warning at iteration 7: the deformation") and "rolled back to" not in shown[0]
+            assert shown[1] == "⚠ divergence at iteration 9: thermal loss is nan; rolled back to iteration 0 with learning rates ×0.5"
+
             # the temperature under the cursor comes from the published raw kelvin
             box = page.locator("#thermal").bounding_box()
             page.mouse.move(box["x"] + box["width"] * 0.3, box["y"] + box["height"] * 0.5)

@@ -51,7 +51,7 @@ def summarise(summary: dict) -> dict:
             "train_s": summary["train_seconds"], "iterations": summary["iterations"],
             "ms_per_it": 1000 * summary["train_seconds"] / max(summary["iterations"], 1),
             "peak_rss_mb": summary.get("peak_rss_mb"), "stop_reason": summary.get("stop_reason"),
-            "events": len(summary.get("events", []))}
+            "events": sum(1 for e in summary.get("events", []) if not e.get("warning"))}
 
 
 def aggregate(rows: list[dict]) -> dict:

@@ -10,7 +10,7 @@ The trainer writes, the server only reads. Contract, ``RUN/live/`` (format "ther
                      losses {modality: float}, psnr {modality: held-out dB}, gaussians,
                      roles {shared, rgb, thermal} (Gaussians per routing role), time_steps,
                      latest_time, events (divergences: [{iteration, reason, rolled_back_to,
-                     lr_scale}]), schedule (what a converging run's schedule is doing, or null),
+                     lr_scale}], and drift warnings: {iteration, reason, warning: true}), schedule (what a converging run's schedule is doing, or null),
                      stop_reason (once done or failed), unix (time.time() of the write), wall_s
                      (s since the publisher started), pid. Missing values are absent or null,
                      never NaN.

@@ -8,7 +8,10 @@ A run is watched for three signs of a blow-up:
   not);
 - held-out PSNR collapsing: ``holdout_drop_db`` below the best seen so far;
 - the deformation drifting: the median Gaussian moved more than ``max_median_motion`` scene
-  extents (the loss can look healthy while the whole model slides off and back).
+  extents (the loss can look healthy while the whole model slides off and back) while held-out
+  PSNR fell ``drift_drop_db`` below its best, or more than ``max_median_motion_alone`` whatever it
+  says (a drift the held-out views do not mind is a warning: a thermal-only model can slide a
+  uniform floor without changing a pixel).
 
 The trainer keeps an in-memory snapshot of the last state that passed these checks. On a blow-up
 it rolls back to it with every learning rate multiplied by ``lr_factor``, logs the event (run log,
@@ -36,6 +39,7 @@ class Event:
     reason: str
     rolled_back_to: int | None = None
     lr_scale: float | None = None
+    warning: bool | None = None       # True: logged, training went on unchanged
 
     def as_dict(self) -> dict:
         return {k: v for k, v in self.__dict__.items() if v is not None}
@@ -109,14 +113,29 @@ class DivergenceGuard:
             self.best_holdout[m] = max(self.best_holdout.get(m, -math.inf), v)
         return None
 
-    def check_motion(self, median_motion: float | None) -> str | None:
-        """A reason if the deformation moves the median Gaussian too far, else None."""
-        if not self.cfg.enabled or median_motion is None:
+    def holdout_drop(self, scores: dict[str, float]) -> float:
+        """How far (dB) held-out PSNR is below its best so far, in the modality where most."""
+        return max((self.best_holdout.get(m, v) - v for m, v in scores.items()), default=0.0)
+
+    def drifting(self, median_motion: float | None) -> bool:
+        """The deformation moves the median Gaussian beyond max_median_motion (blow-up or not)."""
+        return self.cfg.enabled and median_motion is not None and not median_motion <= self.cfg.max_median_motion
+
+    def check_motion(self, median_motion: float | None, drop_db: float | None = None) -> str | None:
+        """A reason if the deformation drifted, else None. drop_db: how far held-out PSNR is below
+        its best (holdout_drop; None: no held-out time steps, the drift alone decides). A drift
+        within max_median_motion_alone while held-out PSNR holds (less than drift_drop_db below
+        its best) is not a blow-up."""
+        if not self.drifting(median_motion):
             return None
-        if not math.isfinite(median_motion) or median_motion > self.cfg.max_median_motion:
-            return (f"the deformation moves the median Gaussian {median_motion:.3g} scene extents "
-                    f"(limit {self.cfg.max_median_motion:g}): the model drifted")
-        return None
+        cfg = self.cfg
+        if (math.isfinite(median_motion) and median_motion <= cfg.max_median_motion_alone
+                and drop_db is not None and drop_db < cfg.drift_drop_db):
+            return None
+        held = "" if drop_db is None or median_motion > cfg.max_median_motion_alone else \
+            f" and held-out PSNR fell {drop_db:.2f} dB below its best"
+        return (f"the deformation moves the median Gaussian {median_motion:.3g} scene extents "
+                f"(limit {cfg.max_median_motion:g}){held}: the model drifted")
 
 
 def lower_quartile(values: list[float]) -> float:
