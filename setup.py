@@ -1,6 +1,6 @@
 """Native extensions. Everything else lives in pyproject.toml.
 
-recon.splat._native and recon.eval._native are built with pybind11 alone: they take numpy buffers,
+recon.splat._native, recon.eval._native and recon.dtg._native are built with pybind11 alone: they take numpy buffers,
 so building them never needs torch. Flags chosen by measurement on the target CPUs (see README, "splat"):
 -O3, OpenMP for tile parallelism, and -march=native for AVX2/FMA (8-lane strips) or AVX-512
 (16-lane strips: a whole tile row).
@@ -25,4 +25,7 @@ native = Pybind11Extension(
 # SSIM's loss and blur (recon/eval/metrics.py): the training loss's other image-sized kernel.
 ssim = Pybind11Extension("recon.eval._native", ["recon/eval/csrc/ssim.cpp"], **FLAGS)
 
-setup(ext_modules=[native, ssim])
+# The rigid bodies' motion (recon/dtg/motion.py): many tiny torch ops fused into one pass.
+motion = Pybind11Extension("recon.dtg._native", ["recon/dtg/csrc/motion.cpp"], **FLAGS)
+
+setup(ext_modules=[native, ssim, motion])

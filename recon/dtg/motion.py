@@ -20,6 +20,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from recon.dtg import _native
 from recon.dtg.neighbours import knn_mean_sq_dist
 from recon.dtg.time_embedding import lerp_rows
 
@@ -160,13 +161,28 @@ def apply_motion(means: torch.Tensor, quats: torch.Tensor | None, basis: torch.T
 
     means (N, 3), quats (N, 4) wxyz or None (then only the means are moved), basis (N,) float
     index (0 = static, b >= 1 = bases row b-1), gate (N,) in [0, 1]: a Gaussian goes that share
-    of the way. Returns moved (means, quats); static Gaussians are returned unchanged."""
+    of the way. Returns moved (means, quats); static Gaussians are returned unchanged.
+    On the CPU in float32 or float64 the native kernel (recon/dtg/csrc/motion.cpp) does it in one
+    pass; elsewhere apply_motion_reference, the same motion in torch ops."""
+    if not bool((basis > 0).any()):
+        return means, quats
+    transforms = body_transforms(bases, t)
+    if means.device.type != "cpu" or means.dtype not in (torch.float32, torch.float64):
+        return apply_motion_reference(means, quats, basis, gate, transforms)
+    empty = means.new_zeros(0, 4)
+    moved, turned = BodyMotion.apply(means, empty if quats is None else quats, basis.to(means.dtype),
+                                     gate.to(means.dtype), transforms.to(means.dtype))
+    return moved, (None if quats is None else turned)
+
+
+def apply_motion_reference(means: torch.Tensor, quats: torch.Tensor | None, basis: torch.Tensor, gate: torch.Tensor,
+                           transforms: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """apply_motion in torch ops, with the bodies' packed transforms (B, 28) (body_transforms): any
+    device, and the reference the native kernel is tested against."""
     idx = basis.long()
     moving = (idx > 0).nonzero()[:, 0]
-    if moving.numel() == 0:
-        return means, quats
     # index_select, not x[idx]: its backward is an index_add, ~3x faster on CPU than index_put's
-    per = body_transforms(bases, t).index_select(0, idx.index_select(0, moving) - 1)    # (M, 28)
+    per = transforms.index_select(0, idx.index_select(0, moving) - 1)    # (M, 28)
     g = gate.index_select(0, moving)[:, None]
     mu = means.index_select(0, moving)
     # bmm, not a broadcast product and a sum: ~30 % less time forward + backward at 13k Gaussians
@@ -177,6 +193,34 @@ def apply_motion(means: torch.Tensor, quats: torch.Tensor | None, basis: torch.T
         turned = torch.bmm(per[:, 12:].view(-1, 4, 4), q[:, :, None])[:, :, 0]
         quats = quats.index_copy(0, moving, torch.lerp(q, turned, g))
     return means, quats
+
+
+class BodyMotion(torch.autograd.Function):
+    """The native kernel in autograd: (means (N,3), quats (N,4) or (0,4) for none, basis (N,),
+    gate (N,), transforms (B,28)) -> (moved means (N,3), turned quats (N,4) or (0,4)). basis gets no
+    gradient."""
+
+    @staticmethod
+    def forward(ctx, means, quats, basis, gate, transforms):
+        args = [_np(x) for x in (means, quats, basis, gate, transforms)]
+        moved, turned = getattr(_native, f"forward_{_dtype(means)}")(*args)
+        ctx.save_for_backward(means, quats, basis, gate, transforms)
+        return torch.from_numpy(moved), torch.from_numpy(turned)
+
+    @staticmethod
+    def backward(ctx, v_means, v_quats):
+        saved = [_np(x) for x in ctx.saved_tensors]
+        grads = getattr(_native, f"backward_{_dtype(v_means)}")(*saved, _np(v_means), _np(v_quats))
+        d_means, d_quats, d_gate, d_transforms = (torch.from_numpy(g) for g in grads)
+        return d_means, d_quats, None, d_gate, d_transforms
+
+
+def _np(t: torch.Tensor):
+    return t.detach().contiguous().numpy()
+
+
+def _dtype(t: torch.Tensor) -> str:
+    return str(t.dtype).removeprefix("torch.")
 
 
 def body_radii(points: torch.Tensor, basis: torch.Tensor, pivots: torch.Tensor, reach: float) -> torch.Tensor:
