@@ -146,13 +146,39 @@ def body_transforms(bases: "MotionBases", t: float) -> torch.Tensor:
     """(B, 28) each body's motion at time t, packed: rotation matrix R (9), offset c (3) and L (16),
     the left multiplication by its rotation quaternion q. A point mu moves to R mu + c (rotation
     about the pivot, then translation), an orientation to L q'. R is the lower 3x3 block of
-    L(q) R(conj(q)) (p -> q p conj(q)): a few autograd nodes, where Rodrigues' formula took 34."""
+    L(q) R(conj(q)) (p -> q p conj(q)). On the CPU (float32 / float64) the native kernel computes
+    them and their VJP from the knots' interpolation (~25 autograd nodes on a few rows in torch);
+    elsewhere body_transforms_reference."""
     rot, trans = bases.at(t)
+    if rot.device.type != "cpu" or rot.dtype not in (torch.float32, torch.float64):
+        return body_transforms_reference(rot, trans, bases.pivots)
+    return BodyTransforms.apply(rot, trans, bases.pivots.to(rot.dtype))
+
+
+def body_transforms_reference(rot: torch.Tensor, trans: torch.Tensor, pivots: torch.Tensor) -> torch.Tensor:
+    """body_transforms in torch ops from the bodies' rotations, translations and pivots (B, 3) each:
+    any device, and the reference the native kernel is tested against."""
     q = axis_angle_to_quat(rot)                                       # (B, 4)
     left = quat_matrix(q, _LEFT)
     r = (left @ quat_matrix(q, _RIGHT_CONJ))[:, 1:, 1:]               # (B, 3, 3)
-    c = bases.pivots + trans - (r @ bases.pivots[:, :, None])[:, :, 0]
+    c = pivots + trans - (r @ pivots[:, :, None])[:, :, 0]
     return torch.cat([r.flatten(1), c, left.flatten(1)], 1)
+
+
+class BodyTransforms(torch.autograd.Function):
+    """The native body_transforms in autograd: (rotation, translation, pivots (B, 3) each) -> (B, 28).
+    The pivots get no gradient."""
+
+    @staticmethod
+    def forward(ctx, rot, trans, pivots):
+        ctx.save_for_backward(rot, trans, pivots)
+        return torch.from_numpy(getattr(_native, f"transforms_forward_{_dtype(rot)}")(_np(rot), _np(trans), _np(pivots)))
+
+    @staticmethod
+    def backward(ctx, v):
+        d_rot, d_trans = getattr(_native, f"transforms_backward_{_dtype(v)}")(
+            *[_np(x) for x in ctx.saved_tensors], _np(v))
+        return torch.from_numpy(d_rot), torch.from_numpy(d_trans), None
 
 
 def apply_motion(means: torch.Tensor, quats: torch.Tensor | None, basis: torch.Tensor, gate: torch.Tensor,

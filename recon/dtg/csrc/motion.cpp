@@ -9,6 +9,8 @@
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <optional>
 #include <stdexcept>
@@ -139,6 +141,125 @@ py::tuple backward(const Arr<T>& means, const Arr<T>& quats, const Arr<T>& basis
   return py::make_tuple(d_m, d_q, d_g, d_t);
 }
 
+
+// The packed transforms of B bodies from their axis-angle rotations, translations and pivots
+// (B,3 each): motion.body_transforms' quaternion q = [cos(h), v sin(h) / |v|] (h = |v| / 2; near 0
+// the series 0.5 - |v|^2 / 48 for sin(h) / |v|), L = L(q), R = the lower 3x3 of L(q) R(conj q),
+// c = pivot + translation - R pivot. In torch these are ~25 autograd nodes on a few rows each.
+template <typename T>
+struct Quat {
+  T q[4];
+  T s, theta, theta2, half;
+};
+
+template <typename T>
+Quat<T> axis_angle(const T* v) {
+  Quat<T> o;
+  o.theta2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+  o.theta = std::sqrt(std::max(o.theta2, (T)1e-12));
+  o.half = (T)0.5 * o.theta;
+  o.s = o.theta2 < (T)1e-8 ? (T)0.5 - o.theta2 / (T)48 : std::sin(o.half) / o.theta;
+  o.q[0] = std::cos(o.half);
+  for (int i = 0; i < 3; ++i) o.q[i + 1] = v[i] * o.s;
+  return o;
+}
+
+// L(q) (left multiplication) and R(conj q) (right multiplication by the conjugate), row-major,
+// as the gathers of motion._LEFT / _RIGHT_CONJ: entry k is sign[k] * q[index[k]].
+constexpr int kIndex[16] = {0, 1, 2, 3, 1, 0, 3, 2, 2, 3, 0, 1, 3, 2, 1, 0};
+constexpr int kLeftSign[16] = {1, -1, -1, -1, 1, 1, -1, 1, 1, 1, 1, -1, 1, -1, 1, 1};
+constexpr int kRightConjSign[16] = {1, 1, 1, 1, -1, 1, -1, 1, -1, 1, 1, -1, -1, -1, 1, 1};
+
+template <typename T>
+void quat_matrices(const T* q, T* L, T* Rc) {
+  for (int k = 0; k < 16; ++k) {
+    L[k] = kLeftSign[k] * q[kIndex[k]];
+    Rc[k] = kRightConjSign[k] * q[kIndex[k]];
+  }
+}
+
+template <typename T>
+Arr<T> transforms_forward(const Arr<T>& rotation, const Arr<T>& translation, const Arr<T>& pivots) {
+  const int64_t nb = rotation.ndim() == 2 ? rotation.shape(0) : -1;
+  check(rotation, "rotation", nb, 3);
+  check(translation, "translation", nb, 3);
+  check(pivots, "pivots", nb, 3);
+  Arr<T> out({(py::ssize_t)nb, (py::ssize_t)kPacked});
+  const T *rot = rotation.data(), *tr = translation.data(), *pv = pivots.data();
+  T* o = out.mutable_data();
+  for (int64_t b = 0; b < nb; ++b) {
+    const Quat<T> a = axis_angle(rot + 3 * b);
+    T L[16], Rc[16];
+    quat_matrices(a.q, L, Rc);
+    T* P = o + b * kPacked;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) {
+        T m = 0;
+        for (int k = 0; k < 4; ++k) m += L[4 * (i + 1) + k] * Rc[4 * k + (j + 1)];
+        P[3 * i + j] = m;
+      }
+    const T* p = pv + 3 * b;
+    for (int i = 0; i < 3; ++i)
+      P[9 + i] = p[i] + tr[3 * b + i] - (P[3 * i] * p[0] + P[3 * i + 1] * p[1] + P[3 * i + 2] * p[2]);
+    for (int k = 0; k < 16; ++k) P[12 + k] = L[k];
+  }
+  return out;
+}
+
+// v (B,28) -> (d rotation (B,3), d translation (B,3)); pivots get none.
+template <typename T>
+py::tuple transforms_backward(const Arr<T>& rotation, const Arr<T>& translation, const Arr<T>& pivots,
+                              const Arr<T>& v) {
+  const int64_t nb = rotation.ndim() == 2 ? rotation.shape(0) : -1;
+  check(rotation, "rotation", nb, 3);
+  check(translation, "translation", nb, 3);
+  check(pivots, "pivots", nb, 3);
+  check(v, "v", nb, kPacked);
+  Arr<T> d_rot({(py::ssize_t)nb, (py::ssize_t)3}), d_tr({(py::ssize_t)nb, (py::ssize_t)3});
+  const T *rot = rotation.data(), *pv = pivots.data(), *vv = v.data();
+  T *dr = d_rot.mutable_data(), *dt = d_tr.mutable_data();
+  for (int64_t b = 0; b < nb; ++b) {
+    const T* r = rot + 3 * b;
+    const T* p = pv + 3 * b;
+    const T* V = vv + b * kPacked;
+    const Quat<T> a = axis_angle(r);
+    T L[16], Rc[16];
+    quat_matrices(a.q, L, Rc);
+    // c = p + t - R p: dt = dc, dR -= dc p^T
+    T dR[9];
+    for (int i = 0; i < 3; ++i) {
+      dt[3 * b + i] = V[9 + i];
+      for (int j = 0; j < 3; ++j) dR[3 * i + j] = V[3 * i + j] - V[9 + i] * p[j];
+    }
+    // M = L Rc with dM nonzero on its lower 3x3: dL = dM Rc^T (+ the packed L's own), dRc = L^T dM
+    T dL[16], dRc[16];
+    for (int k = 0; k < 16; ++k) dL[k] = V[12 + k];
+    for (int i = 1; i < 4; ++i)
+      for (int k = 0; k < 4; ++k)
+        for (int j = 1; j < 4; ++j) dL[4 * i + k] += dR[3 * (i - 1) + (j - 1)] * Rc[4 * k + j];
+    for (int k = 0; k < 4; ++k)
+      for (int j = 0; j < 4; ++j) {
+        T s = 0;
+        if (j >= 1)
+          for (int i = 1; i < 4; ++i) s += L[4 * i + k] * dR[3 * (i - 1) + (j - 1)];
+        dRc[4 * k + j] = s;
+      }
+    T dq[4] = {0, 0, 0, 0};
+    for (int k = 0; k < 16; ++k) dq[kIndex[k]] += kLeftSign[k] * dL[k] + kRightConjSign[k] * dRc[k];
+    // q = [cos(h), r s]: h = theta / 2, theta = sqrt(max(|r|^2, 1e-12))
+    const bool clamped = !(a.theta2 >= (T)1e-12);
+    const bool series = a.theta2 < (T)1e-8;
+    const T ds_dtheta = (T)0.5 * std::cos(a.half) / a.theta - std::sin(a.half) / (a.theta * a.theta);
+    const T rq = dq[1] * r[0] + dq[2] * r[1] + dq[3] * r[2];
+    for (int j = 0; j < 3; ++j) {
+      const T dtheta = clamped ? (T)0 : r[j] / a.theta;
+      const T ds = series ? -(T)2 * r[j] / (T)48 : ds_dtheta * dtheta;
+      dr[3 * b + j] = dq[0] * -std::sin(a.half) * (T)0.5 * dtheta + dq[j + 1] * a.s + rq * ds;
+    }
+  }
+  return py::make_tuple(d_rot, d_tr);
+}
+
 }  // namespace
 
 PYBIND11_MODULE(_native, m) {
@@ -148,4 +269,8 @@ PYBIND11_MODULE(_native, m) {
   m.def("forward_float64", &forward<double>);
   m.def("backward_float32", &backward<float>);
   m.def("backward_float64", &backward<double>);
+  m.def("transforms_forward_float32", &transforms_forward<float>);
+  m.def("transforms_forward_float64", &transforms_forward<double>);
+  m.def("transforms_backward_float32", &transforms_backward<float>);
+  m.def("transforms_backward_float64", &transforms_backward<double>);
 }
