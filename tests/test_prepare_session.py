@@ -190,7 +190,9 @@ def test_a_view_filled_by_a_moving_object_refuses_saying_so(session, tmp_path, m
 
 def test_a_short_moving_object_drops_its_frames_with_a_warning(session, tmp_path, monkeypatch):
     """The "fewer frames" fallback: >= 80 % registered keeps the registered time steps only."""
-    _phone_sees(monkeypatch, _passing_object(1.0, 1.3))   # 2 of 12 frames: 10/12 is >= 80 % whatever SfM does
+    # one frame covered: SfM may lose a neighbour too (with two covered, 9 of 12 registered in a
+    # fresh-clone CI run and once here), and 10 of 12 is still >= 80 %
+    _phone_sees(monkeypatch, _passing_object(1.0, 1.15))
     prepare_session(session, tmp_path / "out", progress=None, **FAST)
     report = json.loads((tmp_path / "out" / REPORT_FILE).read_text())
     kept = report["frames"]["registered"]
