@@ -150,7 +150,7 @@ def body_transforms(bases: "MotionBases", t: float) -> torch.Tensor:
     them and their VJP from the knots' interpolation (~25 autograd nodes on a few rows in torch);
     elsewhere body_transforms_reference."""
     rot, trans = bases.at(t)
-    if rot.device.type != "cpu" or rot.dtype not in (torch.float32, torch.float64):
+    if not _native_fits(rot):
         return body_transforms_reference(rot, trans, bases.pivots)
     return BodyTransforms.apply(rot, trans, bases.pivots.to(rot.dtype))
 
@@ -193,7 +193,7 @@ def apply_motion(means: torch.Tensor, quats: torch.Tensor | None, basis: torch.T
     if not bool((basis > 0).any()):
         return means, quats
     transforms = body_transforms(bases, t)
-    if means.device.type != "cpu" or means.dtype not in (torch.float32, torch.float64):
+    if not _native_fits(means):
         return apply_motion_reference(means, quats, basis, gate, transforms)
     empty = means.new_zeros(0, 4)
     moved, turned = BodyMotion.apply(means, empty if quats is None else quats, basis.to(means.dtype),
@@ -239,6 +239,11 @@ class BodyMotion(torch.autograd.Function):
         grads = getattr(_native, f"backward_{_dtype(v_means)}")(*saved, _np(v_means), _np(v_quats))
         d_means, d_quats, d_gate, d_transforms = (torch.from_numpy(g) for g in grads)
         return d_means, d_quats, None, d_gate, d_transforms
+
+
+def _native_fits(t: torch.Tensor) -> bool:
+    """The native kernels take CPU tensors of float32 or float64."""
+    return t.device.type == "cpu" and t.dtype in (torch.float32, torch.float64)
 
 
 def _np(t: torch.Tensor):

@@ -14,11 +14,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[3]
 sys.path[:0] = [str(ROOT), str(ROOT / "bench")]
 import recon  # noqa: E402,F401
-import torch  # noqa: E402
 from recon.dtg import motion  # noqa: E402
 from train_step import resume_held, warm_images  # noqa: E402
 
-native = (motion.apply_motion, motion.body_transforms)
+native_apply = motion.apply_motion
 
 
 def reference_apply(means, quats, basis, gate, bases, t):
@@ -31,7 +30,7 @@ def reference_apply(means, quats, basis, gate, bases, t):
 
 def use(which: str) -> None:
     import recon.dtg.model as model
-    fn = native[0] if which == "native" else reference_apply
+    fn = native_apply if which == "native" else reference_apply
     motion.apply_motion = model.apply_motion = fn
 
 
