@@ -105,6 +105,34 @@ def test_smoothness_is_zero_for_constant_velocity():
     assert float(bases.smoothness(extent=2.0).detach()) > 1e-3
 
 
+def _rolls_then_stops(knots: int = 40, stop: int = 16, speed: float = 0.02) -> torch.Tensor:
+    """(knots, 3) a path at constant speed along x that stops dead at knot `stop`."""
+    x = speed * torch.arange(knots, dtype=torch.float32).clamp(max=stop)
+    return torch.stack([x, torch.zeros(knots), torch.zeros(knots)], 1)
+
+
+def test_robust_smoothness_prefers_a_stop_to_a_depth_error():
+    """A path scaled about a moving camera, X' = s X + (1 - s) C, fits the training views as well as
+    X. The squared prior lets one stop's kink outweigh a 10 % depth error; the robust one must not."""
+    gen = torch.Generator().manual_seed(0)
+    camera = torch.cumsum(torch.cumsum(0.02 * torch.randn(40, 3, generator=gen), 0), 0)   # a jerky sweep
+    path = _rolls_then_stops() + torch.tensor([0.0, 1.5, 0.0])
+    scaled = 0.9 * path + 0.1 * camera
+
+    def cost(p, scale):
+        bases = MotionBases(torch.zeros(1, 3), knots=40)
+        with torch.no_grad():
+            bases.translation[0] = p
+        return float(bases.smoothness(extent=1.0, scale=scale).detach())
+    squared, robust = cost(path, 0.0) / cost(scaled, 0.0), cost(path, 1e-3) / cost(scaled, 1e-3)
+    assert squared > 0.3          # squared: the stop costs about as much as the depth error
+    assert robust < squared / 2   # robust: the depth error costs several times the stop
+    # below the scale it is the squared prior; above it, linear (the pull on a kink is bounded)
+    small = 1e-5 * torch.randn(40, 3, generator=gen)
+    assert abs(cost(small, 1e-3) - cost(small, 0.0)) < 1e-3 * cost(small, 0.0)
+    assert cost(path, 1e-3) < 0.2 * cost(path, 0.0)
+
+
 def test_connected_clusters_are_objects():
     gen = torch.Generator().manual_seed(3)
     centres = torch.tensor([[0.0, 0, 0], [5.0, 0, 0], [0, 5.0, 0]])

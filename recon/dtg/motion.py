@@ -81,17 +81,25 @@ class MotionBases(nn.Module):
         means[idx] = self.pivots[b] + off * (r / dist).clamp(max=1.0)[:, None]
         log_scales[idx] = torch.minimum(log_scales[idx], torch.log(scale_share * r)[:, None])
 
-    def smoothness(self, extent: float) -> torch.Tensor:
+    def smoothness(self, extent: float, scale: float = 0.0) -> torch.Tensor:
         """Squared second difference of rotation (rad) and translation (in scene extents), summed
         over bases and averaged over knots: each basis' acceleration, whatever the basis count.
 
         It is what fixes a moving object's depth. With one view per instant, an object scaled by s
         about the camera, X'(t) = s X(t) + (1 - s) C(t), looks the same in every training frame; a
         handheld camera centre C(t) accelerates far more than the objects it films, so only s = 1
-        keeps the trajectory smooth."""
+        keeps the trajectory smooth.
+
+        scale > 0: each knot's acceleration a costs the pseudo-Huber 2 s^2 (sqrt(1 + |a|^2 / s^2) - 1)
+        instead: |a|^2 below s, 2 s |a| above (``robust_square``). A depth error adds acceleration at
+        every knot, while an object that starts or stops (a ball that rolls and comes to rest) has
+        one large kink: squared, that kink costs about half as much as a 10 % depth error over the
+        whole path of a handheld sweep (tests/test_motion.py; PriorConfig.basis_smoothness_scale)."""
         if self.rotation.shape[1] < 3:
             return self.rotation.sum() * 0
-        acc = lambda x: (x[:, 2:] - 2 * x[:, 1:-1] + x[:, :-2]).pow(2).sum(-1).mean(1).sum()  # noqa: E731
+        def acc(x):
+            sq = (x[:, 2:] - 2 * x[:, 1:-1] + x[:, :-2]).pow(2).sum(-1)
+            return (robust_square(sq, scale) if scale > 0 else sq).mean(1).sum()
         return acc(self.rotation) + acc(self.translation / extent)
 
     def anchor_pull(self, extent: float) -> torch.Tensor:
@@ -134,6 +142,13 @@ class MotionBases(nn.Module):
 _LEFT = (torch.tensor([0, 1, 2, 3, 1, 0, 3, 2, 2, 3, 0, 1, 3, 2, 1, 0]),
          torch.tensor([1, -1, -1, -1, 1, 1, -1, 1, 1, 1, 1, -1, 1, -1, 1, 1.0]))
 _RIGHT_CONJ = (_LEFT[0], torch.tensor([1, 1, 1, 1, -1, 1, -1, 1, -1, 1, 1, -1, -1, -1, 1, 1.0]))
+
+
+def robust_square(sq: torch.Tensor, scale: float) -> torch.Tensor:
+    """Pseudo-Huber of squared norms sq (...): 2 s^2 (sqrt(1 + sq / s^2) - 1), ~sq below s^2 and
+    ~2 s sqrt(sq) above: a few large values cost linearly, many small ones as squares."""
+    s2 = scale * scale
+    return 2 * s2 * (torch.sqrt(1 + sq / s2) - 1)
 
 
 def quat_matrix(q: torch.Tensor, table: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:

@@ -323,7 +323,7 @@ class Trainer:
         cfg, model = self.cfg.loss, self.model
         reg = 0.0
         if model.motion is not None and self.cfg.priors.basis_smoothness > 0:
-            acc = model.motion.smoothness(self.extent)
+            acc = model.motion.smoothness(self.extent, self.cfg.priors.basis_smoothness_scale)
             reg = reg + self.cfg.priors.basis_smoothness * acc
             stats["basis_acc"] = float(acc.detach())
         if model.motion is not None and self.cfg.priors.path_anchor > 0:
@@ -576,9 +576,7 @@ class Trainer:
         """Log a drift the guard let pass (held-out PSNR holds) once each time it begins."""
         drifting = self.guard.drifting(motion)
         if drifting and not self._drifting:
-            reason = (f"the deformation moves the median Gaussian {motion:.3g} scene extents (limit "
-                      f"{self.cfg.guard.max_median_motion:g}) while held-out PSNR holds ({drop:.2f} dB "
-                      f"below its best): watched, not rolled back")
+            reason = self.guard.drift_warning(motion, drop)
             self.events.append(Event(self.iteration, reason, warning=True).as_dict())
             self.log(f"warning at iteration {self.iteration}: {reason}")
         self._drifting = drifting
