@@ -252,7 +252,10 @@ class PriorConfig:
     basis_smoothness: float = 0.0    # squared acceleration of the motion bases, every knot
     # > 0: a knot's acceleration above this (scene extents per knot^2; radians for rotation) costs
     # linearly, not squared (MotionBases.smoothness): an object may start or stop at one knot
-    # without the path giving up its depth for it. 0: squared everywhere (dtg: 3e-4).
+    # without the path giving up its depth for it. 0: squared everywhere. At 3e-4, never-tuned
+    # seeds 100-103 (3 min, paired): thermal MAE fast 2.04 -> 1.92 K, inside 1.95 -> 1.88, outside
+    # 1.52 -> 1.47; over seeds 100-107 fast 2.04 -> 2.18 K and inside's moving region 8.0 -> 9.0 K:
+    # off (bench/results/basis-robust; docs/training.md, "A path may stop").
     basis_smoothness_scale: float = 0.0
     # squared vertical speed of the motion bases (MotionBases.climb; up from the cameras,
     # Scene.up): moving things keep their height, as on a table or a floor. With
@@ -591,13 +594,7 @@ DTG_MOTION = {
     # seeds 100-107, 3 min, paired: thermal MAE inside 1.49 -> 1.33 K, outside 1.60 -> 1.54 K
     # (lower on 5 and 6 of 8), moving-hot 11.8 -> 10.4 K and 20.9 -> 17.3 K, RGB -0.02 / -0.22 dB
     # (bench/results/body-warmth; docs/training.md, "One temperature per body").
-    # basis_smoothness_scale: a body's path may start or stop at one knot; its acceleration above
-    # 3e-4 scene extents per knot^2 costs linearly (MotionBases.smoothness). Never-tuned seeds
-    # 100-103, 3 min, paired: thermal MAE fast 2.04 -> 1.92 K, inside 1.95 -> 1.88, outside 1.52 ->
-    # 1.47 (lower on 8 of 12), moving region inside 18.0 -> 14.0 K, RGB -0.04 / +0.22 / +0.50 dB
-    # (bench/results/basis-robust; docs/training.md, "A path may stop").
-    "priors": {"basis_smoothness": 1e4, "basis_smoothness_scale": 3e-4, "geometry_gate": 1e-4,
-               "body_temperature": 1.0},
+    "priors": {"basis_smoothness": 1e4, "geometry_gate": 1e-4, "body_temperature": 1.0},
     "lr": {"motion_rotation": (1e-3, 1e-4)},    # at 5e-3 rotation about a pivot slid bodies off
 }
 
