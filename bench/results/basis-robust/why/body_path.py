@@ -8,7 +8,7 @@ import sys, json, numpy as np, torch
 from pathlib import Path
 ROOT = Path(__file__).resolve().parents[4]; sys.path.insert(0, str(ROOT)); sys.path.insert(0, str(ROOT / "bench"))
 from recon.render import load_run
-from recon.dtg.motion import apply_motion
+from body_truth import body_positions
 from oracle import Oracle
 run, data, variant, seed = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3], int(sys.argv[4])
 model, facts = load_run(run)
@@ -24,8 +24,7 @@ for b in range(model.motion.count):
     if not len(rows): continue
     w = op[rows].numpy()
     for t in sorted(cams['cam0']):
-        with torch.no_grad():
-            p = apply_motion(g["means"][rows], None, basis[rows], model.dynamic_gate(rows), model.motion, t)[0].numpy()
+        p = body_positions(model, rows, t)
         c = (p * w[:, None]).sum(0) / w.sum()
         cs = [orc.centre(k, t) for k in range(len(orc.objects))]
         k = int(np.argmin([np.linalg.norm(c - q) for q in cs])); off = c - cs[k]
