@@ -337,6 +337,22 @@ class PathConfig:
     # (bench/results/path-smooth; docs/training.md).
     robust_px: float = 0.0
     link_kelvin: float = 0.0
+    # > 0: spans of at least rest_frames consecutive fitted frames that one still point explains
+    # within rest_px (at 160 px wide) may be rests (paths.rest_windows); one is kept where it raises
+    # the track's RMS pixel error by at most rest_cost px, and the knots inside it then cost
+    # rest_weight x their steps squared (metres): a path that stops stays put instead of sliding
+    # along the rays at a pace its smoothness does not charge for. 0: off. On the development path
+    # probe (bench/results/rest-windows/): fast seeds 40-49, the paths' median error 0.123 ->
+    # 0.024 m; inside and outside 40-49 0.043 -> 0.046 m (inside 40's ball 3.6 -> 5.7 cm). On
+    # never-tuned fast 100-107 (3 min) paths 0.115 -> 0.039 m, moving region 25.9 -> 23.0 K, lower
+    # thermal MAE on 6 of 8, but the median 1.71 -> 1.73 K failed its rule; with priors.path_hold
+    # 0.1, development fast 40-45 0.94 -> 0.65 K (6 of 6), never-tuned 108-115 1.39 -> 1.40 K
+    # (lower on 6 of 8, worst seed 5.24 -> 2.87 K): failed its rule too. Off
+    # (docs/training.md, "A path that stops stays put").
+    rest_px: float = 0.0
+    rest_frames: int = 10
+    rest_cost: float = 0.1
+    rest_weight: float = 1e4
     max_reprojection: float = 2.0     # px (at 160 px wide): a worse fit is not one object's path
     # px (at 160 px wide): the least pixel noise a path's covariance (paths.knot_covariance) assumes;
     # a blob's centroid is not the projection of the object's centre (not chosen by measurement)

@@ -131,6 +131,33 @@ def disc(frame: np.ndarray, centre, radius: float, kelvin: float) -> None:
     frame[(xx - centre[0]) ** 2 + (yy - centre[1]) ** 2 <= radius ** 2] = kelvin
 
 
+def test_a_path_that_stops_stays_put_where_its_frames_show_a_rest():
+    """An object that covers a half circle by t = 0.4 and then stands still, seen by a rig that
+    sweeps at an uneven pace: rest_windows finds the rest (one still point explains those frames
+    within 1 px) and finds none on an object that keeps moving. With the rest's knots held
+    together the still part of the path lies nearer the object than the plain fit's, which
+    slides along the rays (its smoothness does not charge a steady pace), and its pixels fit as
+    well."""
+    times = np.linspace(0, 1, 40)
+    truth = half_circle(np.minimum(2.5 * times, 1.0))
+    up = np.array([0, 0, 1.0])
+    cams = sweep(times, 40, shake=0.003)
+    pixels = pixels_of(cams, truth) + np.random.default_rng(0).uniform(-0.3, 0.3, (40, 2))
+    ones = np.ones((40, 2))
+
+    rests = P.rest_windows(times, cams, pixels, ones, 1.0, 10)
+    assert len(rests) == 1 and 0.38 <= rests[0][0] <= 0.5 and rests[0][1] == 1.0
+    assert P.rest_windows(times, cams, pixels_of(cams, half_circle(times)), ones, 1.0, 10) == []
+
+    still = times >= 0.45
+    plain = P.triangulate_path(times, cams, pixels, 11, 1.0, 1e4, up)
+    held = P.triangulate_path(times, cams, pixels, 11, 1.0, 1e4, up, rests=rests, rest_weight=1e4)
+    error = lambda knots: np.linalg.norm(P.hat_basis(times, 11) @ knots - truth, axis=1)     # noqa: E731
+    assert np.median(error(held)[still]) < 0.5 * np.median(error(plain)[still])
+    assert np.median(error(held)[still]) < 0.01
+    assert np.median(P.reprojection_errors(held, times, cams, pixels)) < 0.5
+
+
 def test_blobs_link_into_one_track_per_object_and_part_at_a_hotter_level():
     """A hot disc moving across the frame, a still warm one and a cold one: one track each over all
     20 frames. Where the moving disc touches the warm one, the 10 K level sees one blob and the

@@ -16,7 +16,9 @@ triangulation"). Here
    (`border_frames`), and a path with `knots` knots, linear between
    them, smooth (second differences) and level (its height along up nearly constant: things move
    on a table or a floor), is fitted to them: linear least squares, then Levenberg-Marquardt on
-   the pixel errors;
+   the pixel errors; with `rest_px` > 0 (off by default: it failed its held-out rule on the fast
+   case's median), spans of frames that one still point explains hold the path still
+   (`rest_windows`; docs/training.md, "A path that stops stays put");
 4. a track moves where no still point explains it (3 px) and its path travels; frames where its
    blob swallows a still track's blob are dropped and it is fitted again; of the tracks of one
    object (at several levels), the one with the most frames is kept.
@@ -131,10 +133,12 @@ def dlt_rows(projections: np.ndarray, pixels: np.ndarray) -> np.ndarray:
                            projections[:, 1] - pixels[:, 1:] * projections[:, 2]])
 
 
-def path_priors(knots: int, smoothness: float, level: float, up: np.ndarray | None) -> np.ndarray:
+def path_priors(knots: int, smoothness: float, level: float, up: np.ndarray | None,
+                rests: list[tuple[float, float]] = (), rest_weight: float = 0.0) -> np.ndarray:
     """(R, 3K) rows whose product with a path's flattened knots (3K,) are its prior residuals:
-    sqrt(smoothness) x the knots' second differences, and sqrt(level) x their heights' spread along
-    up (3,) (None or zero: no such rows)."""
+    sqrt(smoothness) x the knots' second differences, sqrt(level) x their heights' spread along
+    up (3,) (None or zero: no such rows), and sqrt(rest_weight) x the steps between consecutive
+    knots that both lie in one rest window (t0, t1) of `rests` (the object stands still there)."""
     second = np.zeros((max(knots - 2, 0), knots))
     for k in range(knots - 2):
         second[k, k:k + 3] = (1, -2, 1)
@@ -142,12 +146,66 @@ def path_priors(knots: int, smoothness: float, level: float, up: np.ndarray | No
     if up is not None and level > 0 and np.linalg.norm(up) > 0:
         spread = np.eye(knots) - 1.0 / knots
         priors.append(np.kron(spread, np.asarray(up, dtype=np.float64)[None]) * np.sqrt(level))
+    at = np.linspace(0, 1, knots)
+    steps = [k for k in range(knots - 1) for t0, t1 in rests if t0 - 1e-9 <= at[k] and at[k + 1] <= t1 + 1e-9]
+    if steps and rest_weight > 0:
+        first = np.zeros((len(steps), knots))
+        for row, k in enumerate(steps):
+            first[row, k:k + 2] = (-1, 1)
+        priors.append(np.kron(first, np.eye(3)) * np.sqrt(rest_weight))
     return np.concatenate(priors)
+
+
+def rest_windows(times: np.ndarray, projections: np.ndarray, pixels: np.ndarray, weights: np.ndarray,
+                 tolerance_px: float, min_frames: int) -> list[tuple[float, float]]:
+    """(t0, t1) spans of consecutive fitted frames (times (T,) in order) that one still point
+    explains, each frame's pixel error (over the coordinates weights (T, 2) keep) at most
+    tolerance_px, at least min_frames of them: where the object may stand still. Longest first,
+    not overlapping.
+
+    Why: a path's smoothness (second differences) charges nothing for a constant velocity, so
+    where the object rests, a path sliding along the rays at a steady pace fits as well as the
+    still one, and a stop (the family's fast objects cover their path, then stop) costs a kink the
+    fit avoids: at rest the paths of development fast seeds 45 and 46 stayed 11-16 cm off, where
+    the same frames triangulated as one still point were 0.1-2.4 cm off
+    (bench/results/rest-windows/). A moving object's rays can meet near one point too
+    (development inside 40's ball travelled 0.32 m over 11 frames that a still point explains
+    within 1 px; neither the rays' spread nor the blobs' sizes told them apart), so fit_track
+    keeps a window only where standing still costs the whole track no pixels (rest_cost)."""
+    n = len(times)
+    if tolerance_px <= 0 or n < min_frames:
+        return []
+
+    def fits(i: int, j: int) -> bool:        # frames i..j (inclusive) explained by one still point
+        rows = dlt_rows(projections[i:j + 1], pixels[i:j + 1]) * np.concatenate([weights[i:j + 1, 0], weights[i:j + 1, 1]])[:, None]
+        x = np.linalg.svd(rows)[2][-1]
+        if abs(x[3]) < 1e-12:
+            return False
+        point = x[:3] / x[3]
+        depth = projections[i:j + 1, 2, :3] @ point + projections[i:j + 1, 2, 3]
+        err = np.linalg.norm((to_pixels(projections[i:j + 1], point) - pixels[i:j + 1]) * weights[i:j + 1], axis=1)
+        return bool(np.all(depth > 0) and err.max() <= tolerance_px)
+
+    spans = []
+    for i in range(n - min_frames + 1):
+        j = i + min_frames - 1
+        if not fits(i, j):
+            continue
+        while j + 1 < n and fits(i, j + 1):
+            j += 1
+        spans.append((i, j))
+    out, used = [], np.zeros(n, dtype=bool)
+    for i, j in sorted(spans, key=lambda s: s[0] - s[1]):
+        if not used[i:j + 1].any():
+            used[i:j + 1] = True
+            out.append((float(times[i]), float(times[j])))
+    return out
 
 
 def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndarray, knots: int,
                      smoothness: float, level: float, up: np.ndarray | None, robust_px: float = 0.0,
-                     weights: np.ndarray | None = None) -> np.ndarray:
+                     weights: np.ndarray | None = None, rests: list[tuple[float, float]] = (),
+                     rest_weight: float = 0.0) -> np.ndarray:
     """(K, 3) knots of the smooth path whose point at each time times (T,) projects to pixels (T, 2)
     by projections (T, 3, 4): least squares over the pixel errors, smoothness x the knots' second
     differences (metres) and level x their heights' spread along up (3,) (None or zero: no such
@@ -162,10 +220,13 @@ def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndar
     them, tests/test_paths.py).
 
     weights (T, 2), 0 or 1 (None: all 1): which pixel coordinates count (a blob cut by the image's
-    left or right border has its centroid's x pulled inwards; its y still holds)."""
+    left or right border has its centroid's x pulled inwards; its y still holds).
+
+    rests: (t0, t1) windows where the object stands still (rest_windows): consecutive knots inside
+    one cost rest_weight x their step squared (metres)."""
     w = np.ones_like(pixels) if weights is None else np.asarray(weights, dtype=np.float64)
     basis = hat_basis(times, knots)                                          # (T, K)
-    prior = path_priors(knots, smoothness, level, up)                        # (R, 3K)
+    prior = path_priors(knots, smoothness, level, up, rests, rest_weight)    # (R, 3K)
     rows = dlt_rows(projections, pixels) * np.concatenate([w[:, 0], w[:, 1]])[:, None]   # (2T, 4)
     a = (np.concatenate([basis, basis])[:, :, None] * rows[:, None, :3]).reshape(len(rows), 3 * knots)
     start = np.linalg.lstsq(np.concatenate([a, prior]), np.concatenate([-rows[:, 3], np.zeros(len(prior))]),
@@ -381,8 +442,19 @@ def fit_track(track: list[Blob], cameras: dict, up: np.ndarray | None, settings:
     pixels = np.stack([b.centroid for b in used])
     weights = np.array([[float(not b.cut[0]), float(not b.cut[1])] for b in used])   # whole: (1, 1)
     width = cameras[used[0].time].width
-    knots = triangulate_path(times, projections, pixels, settings.knots, settings.smoothness, settings.level, up,
-                             settings.robust_px * width / 160, weights)
+
+    def fit(rests: list) -> np.ndarray:
+        return triangulate_path(times, projections, pixels, settings.knots, settings.smoothness, settings.level, up,
+                                settings.robust_px * width / 160, weights, rests, settings.rest_weight)
+
+    def rms(knots: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(reprojection_errors(knots, times, projections, pixels, weights) ** 2)))
+
+    knots, rests = fit([]), []
+    for window in rest_windows(times, projections, pixels, weights, settings.rest_px * width / 160, settings.rest_frames):
+        trial = fit(rests + [window])       # kept where standing still costs the whole track no pixels
+        if rms(trial) <= rms(knots) + settings.rest_cost * width / 160:
+            knots, rests = trial, rests + [window]
     error = float(np.median(reprojection_errors(knots, times, projections, pixels, weights))) * 160 / width
     r = max((i for i, b in enumerate(used) if not b.border), key=lambda i: (used[i].area, -abs(used[i].time - 0.5)))
     ref, cam = used[r], cameras[used[r].time]
@@ -392,7 +464,8 @@ def fit_track(track: list[Blob], cameras: dict, up: np.ndarray | None, settings:
         return None
     radius = np.sqrt(ref.area / np.pi) * depth / cam.fx
     covariance = knot_covariance(knots, times, projections, pixels,
-                                 path_priors(settings.knots, settings.smoothness, settings.level, up), weights,
+                                 path_priors(settings.knots, settings.smoothness, settings.level, up, rests,
+                                             settings.rest_weight), weights,
                                  settings.floor_px * width / 160)
     return TrackedPath(torch.as_tensor(knots, dtype=torch.float32), ref.time, float(radius), error,
                        still_point_error(projections, pixels, knots.mean(0), weights) * 160 / width, len(used),
