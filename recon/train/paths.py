@@ -126,11 +126,13 @@ def to_pixels(projections: np.ndarray, points: np.ndarray) -> np.ndarray:
     return p[:, :2] / z[:, None]
 
 
-def dlt_rows(projections: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+def dlt_rows(projections: np.ndarray, pixels: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     """(2T, 4) rows r with r . (X, 1) = 0 where the point X projects to pixels (T, 2) through
-    projections (T, 3, 4): the linear (DLT) triangulation equations, x rows then y rows."""
-    return np.concatenate([projections[:, 0] - pixels[:, :1] * projections[:, 2],
+    projections (T, 3, 4): the linear (DLT) triangulation equations, x rows then y rows, each
+    scaled by its coordinate's weight in weights (T, 2) (None: all 1)."""
+    rows = np.concatenate([projections[:, 0] - pixels[:, :1] * projections[:, 2],
                            projections[:, 1] - pixels[:, 1:] * projections[:, 2]])
+    return rows if weights is None else rows * np.concatenate([weights[:, 0], weights[:, 1]])[:, None]
 
 
 def path_priors(knots: int, smoothness: float, level: float, up: np.ndarray | None,
@@ -177,13 +179,13 @@ def rest_windows(times: np.ndarray, projections: np.ndarray, pixels: np.ndarray,
         return []
 
     def fits(i: int, j: int) -> bool:        # frames i..j (inclusive) explained by one still point
-        rows = dlt_rows(projections[i:j + 1], pixels[i:j + 1]) * np.concatenate([weights[i:j + 1, 0], weights[i:j + 1, 1]])[:, None]
-        x = np.linalg.svd(rows)[2][-1]
-        if abs(x[3]) < 1e-12:
+        p, px, w = projections[i:j + 1], pixels[i:j + 1], weights[i:j + 1]
+        x = np.linalg.svd(dlt_rows(p, px, w))[2][-1]
+        if abs(x[3]) < 1e-12:                # a point at infinity: no still object
             return False
         point = x[:3] / x[3]
-        depth = projections[i:j + 1, 2, :3] @ point + projections[i:j + 1, 2, 3]
-        err = np.linalg.norm((to_pixels(projections[i:j + 1], point) - pixels[i:j + 1]) * weights[i:j + 1], axis=1)
+        depth = p[:, 2, :3] @ point + p[:, 2, 3]
+        err = np.linalg.norm((to_pixels(p, point) - px) * w, axis=1)
         return bool(np.all(depth > 0) and err.max() <= tolerance_px)
 
     spans = []
@@ -227,7 +229,7 @@ def triangulate_path(times: np.ndarray, projections: np.ndarray, pixels: np.ndar
     w = np.ones_like(pixels) if weights is None else np.asarray(weights, dtype=np.float64)
     basis = hat_basis(times, knots)                                          # (T, K)
     prior = path_priors(knots, smoothness, level, up, rests, rest_weight)    # (R, 3K)
-    rows = dlt_rows(projections, pixels) * np.concatenate([w[:, 0], w[:, 1]])[:, None]   # (2T, 4)
+    rows = dlt_rows(projections, pixels, w)                                  # (2T, 4)
     a = (np.concatenate([basis, basis])[:, :, None] * rows[:, None, :3]).reshape(len(rows), 3 * knots)
     start = np.linalg.lstsq(np.concatenate([a, prior]), np.concatenate([-rows[:, 3], np.zeros(len(prior))]),
                             rcond=None)[0]
