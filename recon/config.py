@@ -278,6 +278,10 @@ class PriorConfig:
     # MAE 0.84 -> 0.84, 3.63 -> 3.61 K): it failed its rule before the held-out seeds
     # (bench/results/path-hold; docs/training.md, "Holding each path as firmly as it was measured"): off.
     path_hold: float = 0.0
+    # path_hold only on the knots inside a path's rests (paths.rest_px), where the frames showed the
+    # object still; elsewhere the bodies are free. Tried 2026-12-07 (docs/training.md, "A path that
+    # stops stays put"): off.
+    path_hold_rests: bool = False
     # weight of priors.body_warmth: a body's members more than body_band_k from their body's median
     # temperature pay for the excess (normalised units), so what a body's shape has too much of turns
     # transparent instead of taking the background's temperature. At 1: development seeds thermal

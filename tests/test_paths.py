@@ -277,6 +277,29 @@ def object_paths(fam: FamilyScene, times: np.ndarray) -> np.ndarray:
                      for o in fam.objects if o.moving])
 
 
+def test_a_hold_on_rests_only_anchors_the_knots_inside_them():
+    """priors.path_hold_rests: a body is held only at the knots inside its path's rests (the frames
+    showed it still there), and the hold costs nothing for moving it elsewhere."""
+    from recon.dtg.motion import MotionBases
+    from recon.train.initial import measured_knots, resting_knots
+    knots = torch.linspace(0, 1, 11)
+    blobs = {t: None for t in np.linspace(0.1, 0.9, 20)}
+    path = P.TrackedPath(torch.zeros(11, 3), 0.5, 0.05, 0.0, 0.0, 20, blobs, None, ((0.4, 0.7),))
+    assert resting_knots(knots, path).tolist() == [False] * 4 + [True] * 4 + [False] * 3
+    assert measured_knots(knots, path).sum() == 11
+    assert not resting_knots(knots, P.TrackedPath(torch.zeros(11, 3), 0.5, 0.05, 0.0, 0.0, 20, blobs)).any()
+
+    motion = MotionBases(torch.zeros(1, 3), 11)
+    with torch.no_grad():
+        motion.anchored[0] = resting_knots(knots, path)
+        motion.anchor_precision[0] = torch.eye(3).expand(11, 3, 3) * 1e4
+        motion.translation[0, :4] += 0.1            # moved where the object moves: free
+    assert float(motion.hold_cost()) == 0.0
+    with torch.no_grad():
+        motion.translation[0, 5] += 0.1             # moved where it rests: held
+    assert float(motion.hold_cost()) > 0.0
+
+
 def test_the_thermal_frames_give_the_moving_objects_paths(family):
     """family-outside seed 43 (three moving objects, a hot cup, a warm spot): every path found
     follows a moving object (median over the sequence within 10 cm; measured 2-7 cm), at least two

@@ -152,7 +152,8 @@ def initial_model(cfg: TrainConfig, scene: Scene, gen: torch.Generator, log
             for b, path in enumerate(paths):
                 model.motion.translation[b] = path.at(knots) - pivots[b]
                 model.motion.anchors[b] = model.motion.translation[b]
-                model.motion.anchored[b] = measured_knots(knots, path)
+                model.motion.anchored[b] = (resting_knots(knots, path) if cfg.priors.path_hold_rests
+                                            else measured_knots(knots, path))
                 model.motion.anchor_precision[b] = knot_precision(knots, path)
     return model, held
 
@@ -192,6 +193,15 @@ def measured_knots(knots: torch.Tensor, path: TrackedPath) -> torch.Tensor:
     seen = torch.tensor(sorted(path.seen), dtype=knots.dtype)
     step = float(knots[1] - knots[0]) if len(knots) > 1 else 1.0
     return (knots >= seen[0] - step) & (knots <= seen[-1] + step)
+
+
+def resting_knots(knots: torch.Tensor, path: TrackedPath) -> torch.Tensor:
+    """(K,) which knot times knots (K,) lie inside one of path's rests: where the frames showed the
+    object standing still, so its path there is a triangulated point, not a slide along the rays."""
+    inside = torch.zeros(len(knots), dtype=torch.bool)
+    for t0, t1 in path.rests:
+        inside |= (knots >= t0 - 1e-6) & (knots <= t1 + 1e-6)
+    return inside
 
 
 def knot_precision(knots: torch.Tensor, path: TrackedPath, floor_m: float = 0.01) -> torch.Tensor:

@@ -83,6 +83,7 @@ class TrackedPath:
     frames: int                   # whole frames fitted
     seen: dict                    # time -> Blob: the fitted frames' blobs
     covariance: np.ndarray | None = None   # (3K, 3K) the knots' covariance (m^2) by the fit itself
+    rests: tuple = ()             # (t0, t1) spans where the fit holds it still (PathConfig.rest_px)
 
     def at(self, t: torch.Tensor | float) -> torch.Tensor:
         """(T, 3) positions at times t (T,)."""
@@ -471,7 +472,7 @@ def fit_track(track: list[Blob], cameras: dict, up: np.ndarray | None, settings:
                                  settings.floor_px * width / 160)
     return TrackedPath(torch.as_tensor(knots, dtype=torch.float32), ref.time, float(radius), error,
                        still_point_error(projections, pixels, knots.mean(0), weights) * 160 / width, len(used),
-                       {b.time: b for b in used}, covariance)
+                       {b.time: b for b in used}, covariance, tuple(rests))
 
 
 def still_point_error(projections: np.ndarray, pixels: np.ndarray, start: np.ndarray,
