@@ -279,8 +279,11 @@ class PriorConfig:
     # (bench/results/path-hold; docs/training.md, "Holding each path as firmly as it was measured"): off.
     path_hold: float = 0.0
     # path_hold only on the knots inside a path's rests (paths.rest_px), where the frames showed the
-    # object still; elsewhere the bodies are free. Tried 2026-12-07 (docs/training.md, "A path that
-    # stops stays put"): off.
+    # object still; elsewhere the bodies are free. Never-tuned fast 116-123: median thermal MAE 0.91
+    # -> 0.62 K, but lower on only 3 of the 6 seeds it acts on, moving region +2.4 K; on 119 a false
+    # rest moved the ball's path 0.09 -> 0.23 m and thermal MAE 1.3 -> 3.7-4.2 K (twice). It acts on
+    # no inside/outside seed 108-115 (bench/results/rest-windows/hold-rests; docs/training.md, "A
+    # hold on the rests only"): off.
     path_hold_rests: bool = False
     # weight of priors.body_warmth: a body's members more than body_band_k from their body's median
     # temperature pay for the excess (normalised units), so what a body's shape has too much of turns
@@ -351,7 +354,9 @@ class PathConfig:
     # never-tuned fast 100-107 (3 min) paths 0.115 -> 0.039 m, moving region 25.9 -> 23.0 K, lower
     # thermal MAE on 6 of 8, but the median 1.71 -> 1.73 K failed its rule; with priors.path_hold
     # 0.1, development fast 40-45 0.94 -> 0.65 K (6 of 6), never-tuned 108-115 1.39 -> 1.40 K
-    # (lower on 6 of 8, worst seed 5.24 -> 2.87 K): failed its rule too. Off
+    # (lower on 6 of 8, worst seed 5.24 -> 2.87 K): failed its rule too. On fast 116-123 the
+    # paths' median error fell 0.083 -> 0.059 m but the 75th percentile rose 0.096 -> 0.153 m:
+    # false rests (119's ball still moved along the rays inside a kept span). Off
     # (docs/training.md, "A path that stops stays put").
     rest_px: float = 0.0
     rest_frames: int = 10
