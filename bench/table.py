@@ -10,7 +10,7 @@ A *scene* is a simulator variant (`recon simulate --variant`); with --seeds ever
 simulated once per seed (for `family-*` variants each seed is a new scene: rig/sim/family.py).
 Each (scene, seed, method) trains for the same wall-clock budget (training time only: evaluation
 pauses the clock; --converge: `recon run`'s default instead, until held-out error converged
-within the --minutes cap), evaluates all test views at regular checkpoints straight from the
+within the --minutes cap; --iterations N: exactly N iterations, the same numbers run to run), evaluates all test views at regular checkpoints straight from the
 model (same encodings and metric code as `recon eval`, with per-region errors: moving, hot,
 moving-hot, static), then finishes the run as `recon run` does. --train-sizes adds a resolution
 axis: the same scene is also simulated at each training size, every method trains at each, and
@@ -82,22 +82,25 @@ def parse_variant(text: str) -> tuple[str, tuple[str, dict]]:
 def train_with_curve(cfg, scene: Scene, run_dir: Path, checkpoints: int, log,
                      test_scene: Scene | None = None) -> tuple[Trainer, list[dict]]:
     """Train through Trainer.tick (schedule, divergence guard, held-out convergence), grading the
-    test views (of test_scene, default scene's) every 1/checkpoints of the wall-clock budget."""
+    test views (of test_scene, default scene's) every 1/checkpoints of the wall-clock budget, or
+    of cfg.iterations when the run has no budget in minutes (bench/table.py --iterations)."""
     trainer = Trainer(cfg, scene, run_dir, log=log)
-    budget_s = 60.0 * (cfg.minutes or DEFAULT_MINUTES)
-    curve, next_eval = [], budget_s / checkpoints
+    by_time = cfg.minutes is not None or cfg.stop.converge
+    budget = 60.0 * (cfg.minutes or DEFAULT_MINUTES) if by_time else float(cfg.iterations)
+    clock = (lambda: trainer.elapsed) if by_time else (lambda: trainer.iteration)   # noqa: E731
+    curve, next_eval = [], budget / checkpoints
     trainer.announce()
     while not trainer.done():
         trainer.tick()
-        if trainer.elapsed >= next_eval or trainer.done():
+        if clock() >= next_eval or trainer.done():
             metrics = evaluate_model(trainer, every=2, scene=test_scene)
             curve.append({"seconds": round(trainer.elapsed, 2), "iteration": trainer.iteration,
                           "gaussians": trainer.model.num_gaussians,
                           **{k: (round(v, 4) if v is not None else None) for k, v in flatten(metrics).items()}})
             log(f"  {cfg.method}: {trainer.elapsed:6.0f} s it {trainer.iteration:6d} " + " ".join(
                 f"{m} {metrics[m]['psnr']:.2f} dB" for m in ("rgb", "thermal") if m in metrics))
-            while next_eval <= trainer.elapsed:
-                next_eval += budget_s / checkpoints
+            while next_eval <= clock():
+                next_eval += budget / checkpoints
     trainer.save_checkpoint(run_dir / "checkpoints" / "latest.pt")
     return trainer, curve
 
@@ -133,7 +136,8 @@ def table_work(job: Job, run_dir: Path, resume: bool) -> int:
     torch.set_num_threads(job.threads)
     log = lambda msg: print(f"[{spec['scene']} s{spec['seed']} {job.method}] {msg}", flush=True)  # noqa: E731
     base, overrides = spec["variants"].get(job.method, (job.method, {}))
-    cfg = make_config(base, minutes=spec["minutes"], log_every=10**9, checkpoint_every=10**9, threads=job.threads)
+    length = {"iterations": spec["iterations"]} if spec.get("iterations") else {"minutes": spec["minutes"]}
+    cfg = make_config(base, **length, log_every=10**9, checkpoint_every=10**9, threads=job.threads)
     cfg.method = job.method
     cfg.stop.converge = spec["converge"]
     apply_overrides(cfg, overrides)
@@ -215,6 +219,12 @@ def main() -> int:
     ap.add_argument("--minutes", type=float, default=5.0, help="training budget per run (default 5)")
     ap.add_argument("--converge", action="store_true",
                     help="recon run's default: until held-out error converged, --minutes as the cap")
+    ap.add_argument("--iterations", type=int,
+                    help="train exactly N iterations per run instead of --minutes. A run is then the same "
+                         "numbers every time (tests/test_table.py), where a wall-clock budget's iteration "
+                         "count follows the host's speed: the same dtg runs twice at 3 min differed by up "
+                         "to 1.3 K on a seed (docs/training.md). For a prior that adds no time per "
+                         "iteration this pairs arms without that spread; equal-time claims need --minutes")
     ap.add_argument("--frames", type=int, default=40, help="time steps per scene (default 40)")
     ap.add_argument("--size", default="160x120", help="the test views' size, W x H (default 160x120)")
     ap.add_argument("--train-sizes", help="sizes to train at, comma-separated (default: --size); each run is "
@@ -224,6 +234,8 @@ def main() -> int:
     ap.add_argument("--address", help="a Ray cluster to run the grid on (default: a local Ray runtime)")
     ap.add_argument("--threads", type=int, default=None, help="threads per run (default: all; 1 with --jobs > 1)")
     args = ap.parse_args()
+    if args.iterations and args.converge:
+        ap.error("--iterations trains a fixed length; --converge lets held-out error choose it: pick one")
     threads = args.threads or (1 if args.jobs > 1 else os.cpu_count())
     sizes = args.train_sizes.split(",") if args.train_sizes else [args.size]
     scenes, methods, seeds = args.scenes.split(","), args.methods.split(","), parse_seeds(args.seeds)
@@ -251,6 +263,7 @@ def main() -> int:
                     label = m if sizes == [args.size] else f"{m}@{size}"
                     job = Job(f"{name}/{label}", str(data), m, seed, threads,
                               {"scene": scene, "seed": seed, "minutes": args.minutes, "converge": args.converge,
+                               "iterations": args.iterations,
                                "checkpoints": args.checkpoints, "variants": variants, "graded_on": str(graded)})
                     labels[job.name] = label
                     jobs.append(job)
@@ -270,7 +283,8 @@ def main() -> int:
     rows = [{**r, "row": summarise(r["summary"])} for r in results]
     parts, table = [], {"settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
                         "per_run": [], "aggregate": {}}
-    budget = f"until converged, cap {args.minutes:g} min" if args.converge else f"{args.minutes:g} min"
+    budget = (f"{args.iterations} iterations" if args.iterations else
+              f"until converged, cap {args.minutes:g} min" if args.converge else f"{args.minutes:g} min")
     for scene in scenes:
         for label, keep in (("never tuned on", lambda s: s not in tuned), ("tuned on", lambda s: s in tuned)):
             picked = [r for r in rows if r["scene"] == scene and keep(r["seed"])]
