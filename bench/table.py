@@ -10,12 +10,13 @@ A *scene* is a simulator variant (`recon simulate --variant`); with --seeds ever
 simulated once per seed (for `family-*` variants each seed is a new scene: rig/sim/family.py).
 Each (scene, seed, method) trains for the same wall-clock budget (training time only: evaluation
 pauses the clock; --converge: `recon run`'s default instead, until held-out error converged
-within the --minutes cap; --iterations N: exactly N iterations, the same numbers run to run), evaluates all test views at regular checkpoints straight from the
-model (same encodings and metric code as `recon eval`, with per-region errors: moving, hot,
-moving-hot, static), then finishes the run as `recon run` does. --train-sizes adds a resolution
-axis: the same scene is also simulated at each training size, every method trains at each, and
-every run is graded on the --size test views (a model renders at any resolution: one trained at
-160x120 is rendered at 640x480, not upsampled); methods are then named METHOD@WxH. Writes, in --out:
+within the --minutes cap; --iterations N: exactly N iterations, the same numbers run to run),
+evaluates all test views at regular checkpoints straight from the model (same encodings and
+metric code as `recon eval`, with per-region errors: moving, hot, moving-hot, static), then
+finishes the run as `recon run` does. --train-sizes adds a resolution axis: the same scene is
+also simulated at each training size, every method trains at each, and every run is graded on
+the --size test views (a model renders at any resolution: one trained at 160x120 is rendered at
+640x480, not upsampled); methods are then named METHOD@WxH. Writes, in --out:
 
   table.md / table.json      per scene and method: median and worst over seeds of PSNR per
                              modality, thermal MAE (K) whole-image and per region, RGB PSNR on

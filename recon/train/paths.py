@@ -454,10 +454,11 @@ def fit_track(track: list[Blob], cameras: dict, up: np.ndarray | None, settings:
         return float(np.sqrt(np.mean(reprojection_errors(knots, times, projections, pixels, weights) ** 2)))
 
     knots, rests = fit([]), []
+    cost = rms(knots)
     for window in rest_windows(times, projections, pixels, weights, settings.rest_px * width / 160, settings.rest_frames):
         trial = fit(rests + [window])       # kept where standing still costs the whole track no pixels
-        if rms(trial) <= rms(knots) + settings.rest_cost * width / 160:
-            knots, rests = trial, rests + [window]
+        if (trial_cost := rms(trial)) <= cost + settings.rest_cost * width / 160:
+            knots, rests, cost = trial, rests + [window], trial_cost
     error = float(np.median(reprojection_errors(knots, times, projections, pixels, weights))) * 160 / width
     r = max((i for i, b in enumerate(used) if not b.border), key=lambda i: (used[i].area, -abs(used[i].time - 0.5)))
     ref, cam = used[r], cameras[used[r].time]
