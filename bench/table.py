@@ -16,15 +16,21 @@ metric code as `recon eval`, with per-region errors: moving, hot, moving-hot, st
 finishes the run as `recon run` does. --train-sizes adds a resolution axis: the same scene is
 also simulated at each training size, every method trains at each, and every run is graded on
 the --size test views (a model renders at any resolution: one trained at 160x120 is rendered at
-640x480, not upsampled); methods are then named METHOD@WxH. Writes, in --out:
+640x480, not upsampled); methods are then named METHOD@WxH. --train-seeds repeats each run with
+other training seeds (the config's `seed` plus k: every random draw of training): at a fixed
+length a run repeats exactly, yet another seed moves a median over 7 scene seeds by as much as the
+priors the tables judge (docs/training.md, "The training seed's spread"), so each scene seed's cell is
+then the mean over its training seeds, and the table gives their spread. Writes, in --out:
 
   table.md / table.json      per scene and method: median and worst over seeds of PSNR per
                              modality, thermal MAE (K) whole-image and per region, RGB PSNR on
-                             moving pixels, Gaussians, iterations, train seconds
+                             moving pixels, Gaussians, iterations, train seconds; with
+                             --train-seeds each scene seed's mean over them, and per method the
+                             median over scene seeds of their spread (largest - smallest)
   curves.json                test metrics against training seconds, per scene, seed and method
   speed_vs_accuracy.png      median over seeds of PSNR / MAE against wall-clock seconds, and of
                              accuracy against the Gaussian count
-  data/<scene>-s<seed>/, runs/<scene>-s<seed>/<method>/   datasets and complete runs (reused)
+  data/<scene>-s<seed>/, runs/<scene>-s<seed>/<method>[@t<k>]/   datasets and complete runs (reused)
 
 The grid runs as a batch, through `recon batch`'s mechanism (recon/batch/ray_runner.py): one
 Ray task per run, finished runs skipped when the command is run again, a failed run reported
@@ -51,7 +57,7 @@ import torch  # noqa: E402
 
 from recon.batch.jobs import Job, parse_seeds, read_json  # noqa: E402
 from recon.batch.ray_runner import run_batch  # noqa: E402
-from recon.batch.summary import aggregate, flatten, markdown, summarise  # noqa: E402
+from recon.batch.summary import COLUMNS, aggregate, flatten, markdown, summarise  # noqa: E402
 from recon.config import DEFAULT_MINUTES, METHODS, make_config  # noqa: E402
 from recon.data import load_dataset  # noqa: E402
 from recon.data.simulate import SimulateConfig, simulate_dataset  # noqa: E402
@@ -142,6 +148,7 @@ def table_work(job: Job, run_dir: Path, resume: bool) -> int:
     cfg.method = job.method
     cfg.stop.converge = spec["converge"]
     apply_overrides(cfg, overrides)
+    cfg.seed += spec.get("train_seed", 0)
     scene = Scene(load_dataset(Path(job.input)))
     graded = Path(spec.get("graded_on") or job.input)
     test_scene = Scene(load_dataset(graded)) if graded != Path(job.input) else None
@@ -154,6 +161,26 @@ def table_work(job: Job, run_dir: Path, resume: bool) -> int:
     (run_dir / "curve.json").write_text(json.dumps(curve, indent=1))
     log(f"done in {time.perf_counter() - t0:.0f} s wall ({summary['stop_reason']})")
     return 0
+
+
+def mean_over_train_seeds(rows: list[dict]) -> tuple[list[dict], dict]:
+    """Runs [{"scene", "seed", "method", "train_seed", "row"}] -> (one entry per scene, seed and
+    method whose row holds each COLUMNS value's mean over its training seeds and their guard
+    events summed; per method the median over scene seeds of each value's spread, largest -
+    smallest, where a scene seed has more than one training seed)."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["scene"], r["seed"], r["method"]), []).append(r["row"])
+    out, spreads = [], {}
+    for (scene, seed, method), runs in groups.items():
+        row = {"events": sum(x.get("events", 0) for x in runs)}
+        for key, *_ in COLUMNS:
+            vals = [x[key] for x in runs if x.get(key) is not None]
+            row[key] = float(np.mean(vals)) if vals else None
+            if len(vals) > 1:
+                spreads.setdefault(method, {}).setdefault(key, []).append(max(vals) - min(vals))
+        out.append({"scene": scene, "seed": seed, "method": method, "row": row})
+    return out, {m: {k: float(np.median(v)) for k, v in keys.items()} for m, keys in spreads.items()}
 
 
 def median_curve(curves: list[list[dict]], key: str, grid: np.ndarray) -> np.ndarray | None:
@@ -226,6 +253,9 @@ def main() -> int:
                          "count follows the host's speed: the same dtg runs twice at 3 min differed by up "
                          "to 1.3 K on a seed (docs/training.md). For a prior that adds no time per "
                          "iteration this pairs arms without that spread; equal-time claims need --minutes")
+    ap.add_argument("--train-seeds", default="0",
+                    help="training seeds per scene seed and method, e.g. 0-2 (default 0): each run's config "
+                         "seed plus k; the table averages each scene seed's runs and reports their spread")
     ap.add_argument("--frames", type=int, default=40, help="time steps per scene (default 40)")
     ap.add_argument("--size", default="160x120", help="the test views' size, W x H (default 160x120)")
     ap.add_argument("--train-sizes", help="sizes to train at, comma-separated (default: --size); each run is "
@@ -240,6 +270,7 @@ def main() -> int:
     threads = args.threads or (1 if args.jobs > 1 else os.cpu_count())
     sizes = args.train_sizes.split(",") if args.train_sizes else [args.size]
     scenes, methods, seeds = args.scenes.split(","), args.methods.split(","), parse_seeds(args.seeds)
+    train_seeds = parse_seeds(args.train_seeds)
     tuned = set(parse_seeds(args.tuned_seeds))
     variants = dict(parse_variant(v) for v in args.variant)
     unknown = [m for m in methods if m not in METHODS and m not in variants]
@@ -262,12 +293,13 @@ def main() -> int:
                 data = data_folder(args.out, name, size, args.size)
                 for m in methods:
                     label = m if sizes == [args.size] else f"{m}@{size}"
-                    job = Job(f"{name}/{label}", str(data), m, seed, threads,
-                              {"scene": scene, "seed": seed, "minutes": args.minutes, "converge": args.converge,
-                               "iterations": args.iterations,
-                               "checkpoints": args.checkpoints, "variants": variants, "graded_on": str(graded)})
-                    labels[job.name] = label
-                    jobs.append(job)
+                    for k in train_seeds:
+                        job = Job(f"{name}/{label}" + (f"@t{k}" if k else ""), str(data), m, seed, threads,
+                                  {"scene": scene, "seed": seed, "minutes": args.minutes, "converge": args.converge,
+                                   "iterations": args.iterations, "train_seed": k, "checkpoints": args.checkpoints,
+                                   "variants": variants, "graded_on": str(graded)})
+                        labels[job.name] = label
+                        jobs.append(job)
     methods = list(dict.fromkeys(labels.values()))
     # the grid runs as a batch (recon batch's mechanism: Ray tasks, finished runs skipped,
     # RUNS/batch.json for the status page); --jobs caps the local runtime's CPUs
@@ -277,18 +309,20 @@ def main() -> int:
     failed = [r for r in rows if r["state"] == "failed"]
     if failed:
         print("failed: " + "; ".join(f"{r['name']}: {r['error']}" for r in failed))
-    results = [{"scene": j.spec["scene"], "seed": j.seed, "method": labels[j.name],
+    results = [{"scene": j.spec["scene"], "seed": j.seed, "method": labels[j.name], "train_seed": j.spec["train_seed"],
                 "summary": read_json(j.run_dir(runs) / "metrics.json"),
                 "curve": json.loads((j.run_dir(runs) / "curve.json").read_text())}
                for j, r in zip(jobs, rows) if r["state"] != "failed"]
     rows = [{**r, "row": summarise(r["summary"])} for r in results]
+    cells, spreads = mean_over_train_seeds(rows)
     parts, table = [], {"settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
                         "per_run": [], "aggregate": {}}
     budget = (f"{args.iterations} iterations" if args.iterations else
               f"until converged, cap {args.minutes:g} min" if args.converge else f"{args.minutes:g} min")
+    repeats = f"; each seed the mean of {len(train_seeds)} training seeds" if len(train_seeds) > 1 else ""
     for scene in scenes:
         for label, keep in (("never tuned on", lambda s: s not in tuned), ("tuned on", lambda s: s in tuned)):
-            picked = [r for r in rows if r["scene"] == scene and keep(r["seed"])]
+            picked = [r for r in cells if r["scene"] == scene and keep(r["seed"])]
             if not picked:
                 continue
             groups = {m: aggregate([r["row"] for r in picked if r["method"] == m]) for m in methods}
@@ -296,13 +330,21 @@ def main() -> int:
             seeds_text = ",".join(str(s) for s in sorted({r["seed"] for r in picked}))
             parts.append(markdown(groups, f"{scene}, seeds {seeds_text} ({label}): median (worst) over seeds; "
                                           f"{budget} per run, trained at {args.train_sizes or args.size}, graded at "
-                                          f"{args.size}, {args.frames} time steps, test = rig 1"))
+                                          f"{args.size}, {args.frames} time steps, test = rig 1{repeats}"))
             table["aggregate"][f"{scene} {label}"] = groups
-    table["per_run"] = [{"scene": r["scene"], "seed": r["seed"], "method": r["method"], **r["row"]} for r in rows]
+    if spreads:
+        parts.append("**Spread between training seeds** (median over scene seeds of largest - smallest): "
+                     + "; ".join(f"{m}: th MAE {v.get('mae_k_thermal', float('nan')):.2f} K, moving "
+                                 f"{v.get('mae_k_moving', float('nan')):.2f} K, RGB {v.get('psnr_rgb', float('nan')):.2f} dB"
+                                 for m, v in spreads.items()))
+        table["train_seed_spread"] = spreads
+    table["per_run"] = [{"scene": r["scene"], "seed": r["seed"], "method": r["method"], "train_seed": r["train_seed"],
+                         **r["row"]} for r in rows]
     (args.out / "table.md").write_text("\n\n".join(parts) + "\n")
     (args.out / "table.json").write_text(json.dumps(table, indent=1))
     (args.out / "curves.json").write_text(json.dumps(
-        [{"scene": r["scene"], "seed": r["seed"], "method": r["method"], "curve": r["curve"]} for r in rows], indent=1))
+        [{"scene": r["scene"], "seed": r["seed"], "method": r["method"], "train_seed": r["train_seed"],
+          "curve": r["curve"]} for r in rows], indent=1))
     plot(rows, scenes, methods, args.out / "speed_vs_accuracy.png")
     print((args.out / "table.md").read_text())
     return 0

@@ -39,3 +39,28 @@ def test_a_fixed_length_run_grades_at_its_iterations_and_repeats_exactly(table, 
     strip = lambda c: [{k: v for k, v in row.items() if k != "seconds"} for row in c]     # noqa: E731
     assert strip(curves[0]) == strip(curves[1])
     assert curves[0][-1]["psnr_thermal"] != curves[0][0]["psnr_thermal"]       # it trained between them
+
+
+def test_train_seeds_repeat_each_run_and_the_table_reports_their_mean_and_spread(tmp_path):
+    """--train-seeds 0,1: each (scene seed, method) trains twice with config seeds 0 and 1; the
+    two runs differ (another seed is another training), the table's cell is their mean and its
+    spread line their difference."""
+    import json
+    import subprocess
+    out = tmp_path / "t"
+    run = subprocess.run([sys.executable, "bench/table.py", "--out", str(out), "--scenes", "family-fast", "--seeds", "3",
+                          "--methods", "dtg", "--iterations", "30", "--train-seeds", "0,1", "--frames", "6",
+                          "--size", "40x30", "--checkpoints", "1", "--jobs", "1", "--threads", "2"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    assert (out / "runs" / "family-fast-s3" / "dtg").is_dir() and (out / "runs" / "family-fast-s3" / "dtg@t1").is_dir()
+    table = json.loads((out / "table.json").read_text())
+    runs = sorted(table["per_run"], key=lambda r: r["train_seed"])
+    assert [r["train_seed"] for r in runs] == [0, 1] and {r["method"] for r in runs} == {"dtg"}
+    a, b = (r["mae_k_thermal"] for r in runs)
+    assert a != b
+    (cell,) = table["aggregate"].values()
+    assert cell["dtg"]["seeds"] == 1
+    assert cell["dtg"]["mae_k_thermal"] == pytest.approx((a + b) / 2)
+    assert table["train_seed_spread"]["dtg"]["mae_k_thermal"] == pytest.approx(abs(a - b))
+    assert "mean of 2 training seeds" in (out / "table.md").read_text()
