@@ -23,8 +23,13 @@ def mean(rows: list[dict], key: str) -> float | None:
     return statistics.fmean(vals) if vals else None
 
 
+def value_range(rows: list[dict], key: str) -> tuple[float, float]:
+    vals = [r[key] for r in rows if r.get(key) is not None] or [float("nan")]   # an RGB-only run: no thermal
+    return min(vals), max(vals)
+
+
 runs = {k: {**{key: mean(rows, key) for key in keys}, "events": sum(r["events"] for r in rows),
-            "range": (min(r["mae_k_thermal"] for r in rows), max(r["mae_k_thermal"] for r in rows)), "n": len(rows)}
+            "range": value_range(rows, "mae_k_thermal"), "n": len(rows)}
         for k, rows in groups.items()}
 repeated = any(v["n"] > 1 for v in runs.values())
 fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
