@@ -25,8 +25,8 @@ then the mean over its training seeds, and the table gives their spread. Writes,
   table.md / table.json      per scene and method: median and worst over seeds of PSNR per
                              modality, thermal MAE (K) whole-image and per region, RGB PSNR on
                              moving pixels, Gaussians, iterations, train seconds; with
-                             --train-seeds each scene seed's mean over them, and per method the
-                             median over scene seeds of their spread (largest - smallest)
+                             --train-seeds each scene seed's mean over them, and per scene and
+                             method the median over scene seeds of their spread (largest - smallest)
   curves.json                test metrics against training seconds, per scene, seed and method
   speed_vs_accuracy.png      median over seeds of PSNR / MAE against wall-clock seconds, and of
                              accuracy against the Gaussian count
@@ -166,8 +166,8 @@ def table_work(job: Job, run_dir: Path, resume: bool) -> int:
 def mean_over_train_seeds(rows: list[dict]) -> tuple[list[dict], dict]:
     """Runs [{"scene", "seed", "method", "train_seed", "row"}] -> (one entry per scene, seed and
     method whose row holds each COLUMNS value's mean over its training seeds and their guard
-    events summed; per method the median over scene seeds of each value's spread, largest -
-    smallest, where a scene seed has more than one training seed)."""
+    events summed; per scene and method the median over scene seeds of each value's spread,
+    largest - smallest, where a scene seed has more than one training seed)."""
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
         groups.setdefault((r["scene"], r["seed"], r["method"]), []).append(r["row"])
@@ -178,9 +178,10 @@ def mean_over_train_seeds(rows: list[dict]) -> tuple[list[dict], dict]:
             vals = [x[key] for x in runs if x.get(key) is not None]
             row[key] = float(np.mean(vals)) if vals else None
             if len(vals) > 1:
-                spreads.setdefault(method, {}).setdefault(key, []).append(max(vals) - min(vals))
+                spreads.setdefault(scene, {}).setdefault(method, {}).setdefault(key, []).append(max(vals) - min(vals))
         out.append({"scene": scene, "seed": seed, "method": method, "row": row})
-    return out, {m: {k: float(np.median(v)) for k, v in keys.items()} for m, keys in spreads.items()}
+    return out, {scene: {m: {k: float(np.median(v)) for k, v in keys.items()} for m, keys in methods.items()}
+                 for scene, methods in spreads.items()}
 
 
 def median_curve(curves: list[list[dict]], key: str, grid: np.ndarray) -> np.ndarray | None:
@@ -332,11 +333,12 @@ def main() -> int:
                                           f"{budget} per run, trained at {args.train_sizes or args.size}, graded at "
                                           f"{args.size}, {args.frames} time steps, test = rig 1{repeats}"))
             table["aggregate"][f"{scene} {label}"] = groups
-    if spreads:
-        parts.append("**Spread between training seeds** (median over scene seeds of largest - smallest): "
+    for scene, by_method in spreads.items():
+        parts.append(f"**{scene}: spread between training seeds** (median over scene seeds of largest - smallest): "
                      + "; ".join(f"{m}: th MAE {v.get('mae_k_thermal', float('nan')):.2f} K, moving "
                                  f"{v.get('mae_k_moving', float('nan')):.2f} K, RGB {v.get('psnr_rgb', float('nan')):.2f} dB"
-                                 for m, v in spreads.items()))
+                                 for m, v in by_method.items()))
+    if spreads:
         table["train_seed_spread"] = spreads
     table["per_run"] = [{"scene": r["scene"], "seed": r["seed"], "method": r["method"], "train_seed": r["train_seed"],
                          **r["row"]} for r in rows]
