@@ -1,6 +1,8 @@
 """bench/table.py --iterations: a run of a fixed length is the same numbers every time, so two arms
 can be paired without the spread a wall-clock budget brings (its iteration count follows the
 host's speed: the same dtg runs twice at 3 min differed by up to 1.3 K on a seed)."""
+import json
+import subprocess
 import sys
 from pathlib import Path
 
@@ -45,8 +47,6 @@ def test_train_seeds_repeat_each_run_and_the_table_reports_their_mean_and_spread
     """--train-seeds 0,1: each (scene seed, method) trains twice with config seeds 0 and 1; the
     two runs differ (another seed is another training), the table's cell is their mean and its
     spread line their difference."""
-    import json
-    import subprocess
     out = tmp_path / "t"
     run = subprocess.run([sys.executable, "bench/table.py", "--out", str(out), "--scenes", "family-fast", "--seeds", "3",
                           "--methods", "dtg", "--iterations", "30", "--train-seeds", "0,1", "--frames", "6",

@@ -27,8 +27,10 @@ from recon.train import paths as P  # noqa: E402
 
 
 def size_trend(ts, proj, px, w, fx, diam, truth):
-    """(change, residual) of log(diam x depth / fx) over times ts, fitted linearly in time, with
-    the still point's depths, and the change with the true centres' truth (T, 3)."""
+    """Over one window's frames (times ts (T,), projections (T, 3, 4), pixels and weights (T, 2),
+    focal lengths fx and blob diameters diam (T,), the object's true centres truth (T, 3)): the
+    still point's depths (T,), the true depths (T,), the (change, residual) of log(diam x depth /
+    fx) fitted linearly in time under the still point's depths, and that change under the true ones."""
     x = np.linalg.svd(P.dlt_rows(proj, px, w))[2][-1]
     depth = proj[:, 2, :3] @ (x[:3] / x[3]) + proj[:, 2, 3]
     true_depth = np.einsum('tj,tj->t', proj[:, 2, :3], truth) + proj[:, 2, 3]

@@ -40,8 +40,8 @@ for scene in sorted({s for s, _, _ in runs}):
     seeds = sorted(seed for s, seed, m in runs if s == scene and m == a and (s, seed, b) in runs)
     for seed in seeds:
         x, y = runs[scene, seed, a], runs[scene, seed, b]
-        cells = [f"{fmt(x[k])} -> {fmt(y[k])}" for k in keys]
-        cells[0] = f"{fmt(x[keys[0]])}{spread(x)} -> {fmt(y[keys[0]])}{spread(y)}"
+        cells = [f"{fmt(x[keys[0]])}{spread(x)} -> {fmt(y[keys[0]])}{spread(y)}",
+                 *(f"{fmt(x[k])} -> {fmt(y[k])}" for k in keys[1:])]
         print(f"{scene} {seed}: " + " | ".join(cells) + f" | {x['events']}/{y['events']}")
     # a seed without a region (no moving-hot pixels: None) has no value in that median
     med = {m: [statistics.median([v for s in seeds if (v := runs[scene, s, m][k]) is not None] or [float("nan")])
